@@ -1,0 +1,202 @@
+"""What every fusion method returns, and the cluster fit they share.
+
+All arrays are in the local metric world frame (metres).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from featmap.geometry import as_segments, segment_lengths
+
+MIN_SEGMENT_LENGTH_M = 1e-6
+"""Segments shorter than this have no direction nor feature circle; every method skips them."""
+
+
+@dataclass(frozen=True)
+class FusionResult:
+    """Output of one fusion method.
+
+    Attributes:
+        segments: (M, 4) fused features ``x1, y1, x2, y2`` after corner optimisation.
+        support: (M,) number of input segments merged into each fused feature.
+        labels: (N,) index of the fused feature each input segment went into, -1 if dropped.
+        segments_before_corners: (M, 4) the same features before corner optimisation.
+        clusters_dropped: clusters (groups of linked segments, singletons included) removed
+            because they had fewer than ``min_support`` members (0 for methods without that rule).
+        skipped_zero_length: input segments skipped because they had no length.
+    """
+
+    segments: np.ndarray
+    support: np.ndarray
+    labels: np.ndarray
+    segments_before_corners: np.ndarray
+    clusters_dropped: int = 0
+    skipped_zero_length: int = 0
+    extras: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.segments)
+
+
+def validate_input(segments, scan) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Check shapes and values; return (segments (N, 4), scan (N,), valid mask (N,))."""
+    segments = as_segments(segments)
+    scan = np.asarray(scan).reshape(-1)
+    if len(scan) != len(segments):
+        raise ValueError(f"scan has {len(scan)} entries for {len(segments)} segments")
+    if not np.all(np.isfinite(segments)):
+        raise ValueError("segments contain NaN or inf")
+    scan = scan.astype(np.int64)
+    valid = segment_lengths(segments) > MIN_SEGMENT_LENGTH_M
+    return segments, scan, valid
+
+
+def fit_clusters(segments: np.ndarray, labels: np.ndarray, n_clusters: int,
+                 weights: np.ndarray | None = None) -> np.ndarray:
+    """Fuse each cluster into one segment, vectorised over clusters.
+
+    For cluster ``c`` (members ``labels == c``), a total-least-squares line is fitted through all
+    member endpoints (each endpoint weighted by its segment's weight), every member endpoint is
+    projected onto that line, and the two extreme projections become the fused endpoints
+    (the paper's Section 3.2 and Figure 6).
+
+    Args:
+        segments: (N, 4) input segments.
+        labels: (N,) cluster index in ``[0, n_clusters)`` or -1 (ignored).
+        n_clusters: number of clusters M.
+        weights: (N,) non-negative weight per segment, or None for equal weights.
+    Returns:
+        (M, 4) fused segments.
+    """
+    if n_clusters == 0:
+        return np.zeros((0, 4))
+    keep = labels >= 0
+    seg = segments[keep]
+    lab = labels[keep]
+    w = np.ones(len(seg)) if weights is None else np.asarray(weights, float)[keep]
+    pts = np.concatenate([seg[:, :2], seg[:, 2:]])  # (2K, 2): first endpoints, then second
+    lab2 = np.concatenate([lab, lab])
+    w2 = np.concatenate([w, w])
+    wsum = np.bincount(lab2, w2, n_clusters)
+    wsum = np.where(wsum > 0, wsum, 1.0)
+    mx = np.bincount(lab2, w2 * pts[:, 0], n_clusters) / wsum
+    my = np.bincount(lab2, w2 * pts[:, 1], n_clusters) / wsum
+    dx = pts[:, 0] - mx[lab2]
+    dy = pts[:, 1] - my[lab2]
+    sxx = np.bincount(lab2, w2 * dx * dx, n_clusters)
+    syy = np.bincount(lab2, w2 * dy * dy, n_clusters)
+    sxy = np.bincount(lab2, w2 * dx * dy, n_clusters)
+    # Principal axis of the 2x2 scatter matrix in closed form; theta in (-pi/2, pi/2] gives cos >= 0,
+    # a canonical sign that makes the result independent of the input order.
+    theta = 0.5 * np.arctan2(2 * sxy, sxx - syy)
+    ux, uy = np.cos(theta), np.sin(theta)
+    t = dx * ux[lab2] + dy * uy[lab2]
+    tmin = np.full(n_clusters, np.inf)
+    tmax = np.full(n_clusters, -np.inf)
+    np.minimum.at(tmin, lab2, t)
+    np.maximum.at(tmax, lab2, t)
+    empty = ~np.isfinite(tmin)
+    tmin[empty] = tmax[empty] = 0.0
+    return np.stack([mx + tmin * ux, my + tmin * uy, mx + tmax * ux, my + tmax * uy], axis=1)
+
+
+def relabel_by_first_appearance(groups: np.ndarray, scan: np.ndarray, segments: np.ndarray,
+                                order_key: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Renumber group ids 0..G-1 in a canonical order that does not depend on the input order.
+
+    Groups are ordered by ``order_key`` (per group, e.g. the scan at which the group was first
+    linked; default: the group's first scan), then by its first scan, then by its mean midpoint.
+    Returns (new group id per segment (N,), group sizes (G,)).
+    """
+    n_groups = int(groups.max()) + 1 if len(groups) else 0
+    first_scan = np.full(n_groups, np.iinfo(np.int64).max)
+    np.minimum.at(first_scan, groups, scan)
+    sizes = np.bincount(groups, minlength=n_groups)
+    mid = 0.5 * (segments[:, :2] + segments[:, 2:])
+    cx = np.bincount(groups, mid[:, 0], n_groups) / np.maximum(sizes, 1)
+    cy = np.bincount(groups, mid[:, 1], n_groups) / np.maximum(sizes, 1)
+    key = first_scan if order_key is None else order_key
+    order = np.lexsort((np.round(cy, 6), np.round(cx, 6), first_scan, key))
+    rank = np.empty(n_groups, dtype=np.int64)
+    rank[order] = np.arange(n_groups)
+    return rank[groups], sizes[order]
+
+
+def orientation_embedding(theta: np.ndarray) -> np.ndarray:
+    """Embed undirected orientations (radians, pi-periodic) as (K, 2) points on a circle of radius 1/2.
+
+    Doubling the angle makes 0 and pi the same point (a wall at 179 deg is a wall at -1 deg), and the
+    radius 1/2 makes the chord between two embedded points approximately the angle difference in
+    radians, so a Euclidean bandwidth in this space is an angular bandwidth.
+    """
+    return 0.5 * np.stack([np.cos(2 * theta), np.sin(2 * theta)], axis=1)
+
+
+def cluster_orientations(theta: np.ndarray, bandwidth_rad: float) -> np.ndarray:
+    """Mean-shift clusters of undirected orientations (K,) -> (K,) cluster ids (scikit-learn MeanShift)."""
+    from sklearn.cluster import MeanShift
+
+    if len(theta) == 0:
+        return np.zeros(0, np.int64)
+    if len(theta) == 1:
+        return np.zeros(1, np.int64)
+    ms = MeanShift(bandwidth=bandwidth_rad, bin_seeding=True, cluster_all=True)
+    return ms.fit_predict(orientation_embedding(theta)).astype(np.int64)
+
+
+def merge_onto_mean_line(segments: np.ndarray, labels: np.ndarray, n_clusters: int,
+                         weights: np.ndarray | None = None) -> np.ndarray:
+    """Merge each cluster onto the line through its (weighted) mean midpoint at its mean orientation.
+
+    The merging rule of both competing algorithms: the representative line passes through the middle
+    of the cluster with the clusters' average direction (doubled-angle circular mean); member endpoints
+    are projected onto it and the extreme projections become the fused endpoints.
+    Returns (M, 4).
+    """
+    if n_clusters == 0:
+        return np.zeros((0, 4))
+    keep = labels >= 0
+    seg, lab = segments[keep], labels[keep]
+    w = np.ones(len(seg)) if weights is None else np.asarray(weights, float)[keep]
+    wsum = np.maximum(np.bincount(lab, w, n_clusters), 1e-12)
+    mid = 0.5 * (seg[:, :2] + seg[:, 2:])
+    mx = np.bincount(lab, w * mid[:, 0], n_clusters) / wsum
+    my = np.bincount(lab, w * mid[:, 1], n_clusters) / wsum
+    d = seg[:, 2:] - seg[:, :2]
+    phi = 2 * np.arctan2(d[:, 1], d[:, 0])
+    theta = 0.5 * np.arctan2(np.bincount(lab, w * np.sin(phi), n_clusters),
+                             np.bincount(lab, w * np.cos(phi), n_clusters))
+    ux, uy = np.cos(theta), np.sin(theta)
+    pts = np.concatenate([seg[:, :2], seg[:, 2:]])
+    lab2 = np.concatenate([lab, lab])
+    t = (pts[:, 0] - mx[lab2]) * ux[lab2] + (pts[:, 1] - my[lab2]) * uy[lab2]
+    tmin = np.full(n_clusters, np.inf)
+    tmax = np.full(n_clusters, -np.inf)
+    np.minimum.at(tmin, lab2, t)
+    np.maximum.at(tmax, lab2, t)
+    empty = ~np.isfinite(tmin)
+    tmin[empty] = tmax[empty] = 0.0
+    return np.stack([mx + tmin * ux, my + tmin * uy, mx + tmax * ux, my + tmax * uy], axis=1)
+
+
+def finish_clusters(segments: np.ndarray, scan: np.ndarray, valid: np.ndarray, groups: np.ndarray,
+                    merge, weights: np.ndarray | None = None, extras: dict | None = None) -> FusionResult:
+    """Common tail of the methods without a support filter: canonical labels, merge, FusionResult.
+
+    ``groups`` (K,) are cluster ids of the valid segments; ``merge`` is a merge function such as
+    :func:`merge_onto_mean_line`.
+    """
+    labels = np.full(len(segments), -1, dtype=np.int64)
+    idx = np.flatnonzero(valid)
+    if len(idx) == 0:
+        empty = np.zeros((0, 4))
+        return FusionResult(empty, np.zeros(0, np.int64), labels, empty, 0, int((~valid).sum()), extras or {})
+    seg, sc = segments[idx], scan[idx]
+    _, groups = np.unique(groups, return_inverse=True)
+    sub, sizes = relabel_by_first_appearance(groups.reshape(-1), sc, seg)
+    fused = merge(seg, sub, len(sizes), None if weights is None else weights[idx])
+    labels[idx] = sub
+    return FusionResult(fused, sizes.astype(np.int64), labels, fused, 0, int((~valid).sum()), extras or {})

@@ -1,0 +1,1 @@
+"""Readers and writers. Every writer is atomic (temp file + rename) and most have a reader twin."""

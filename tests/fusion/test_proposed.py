@@ -1,0 +1,143 @@
+import numpy as np
+import pytest
+
+from featmap.config import FeatmapConfig, ProposedConfig
+from featmap.fusion import fuse
+from featmap.fusion.proposed import evaluate_pairs, fuse_proposed
+from featmap.geometry import point_segment_distance
+from featmap.synthetic import observe_walls
+
+
+def _max_dist_to_line(fused, wall):
+    """Largest distance of the fused endpoints to the infinite line of ``wall``."""
+    p, q = np.asarray(wall[:2]), np.asarray(wall[2:])
+    n = np.array([-(q - p)[1], (q - p)[0]]) / np.hypot(*(q - p))
+    return max(abs((fused[:2] - p) @ n), abs((fused[2:] - p) @ n))
+
+
+def test_one_noisy_wall_fuses_to_one_segment_spanning_the_observations():
+    rng = np.random.default_rng(7)
+    wall = np.array([2.0, 5.0, 32.0, 9.0])
+    segs, scan = observe_walls(wall, 20, 0.03, rng, min_fraction=0.4)
+    result = fuse_proposed(segs, scan)
+    assert len(result.segments) == 1
+    fused = result.segments[0]
+    assert _max_dist_to_line(fused, wall) < 0.03
+    # spans the union of the observations (extreme projections), within noise
+    d = (wall[2:] - wall[:2]) / np.hypot(*(wall[2:] - wall[:2]))
+    t_obs = np.concatenate([(segs[:, :2] - wall[:2]) @ d, (segs[:, 2:] - wall[:2]) @ d])
+    t_fused = np.sort((fused.reshape(2, 2) - wall[:2]) @ d)
+    assert t_fused[0] == pytest.approx(t_obs.min(), abs=0.1)
+    assert t_fused[1] == pytest.approx(t_obs.max(), abs=0.1)
+    assert result.support.tolist() == [20]
+    assert (result.labels == 0).all()
+
+
+@pytest.mark.parametrize("gap", [15.0, 2.5])
+def test_parallel_walls_stay_apart(gap):
+    rng = np.random.default_rng(3)
+    walls = np.array([[0, 0, 30, 0], [0, gap, 30, gap]], float)
+    segs, scan = observe_walls(walls, 20, 0.03, rng, first_scan=np.array([0, 0]))
+    result = fuse_proposed(segs, scan)
+    assert len(result.segments) == 2
+    ys = sorted(result.segments[:, [1, 3]].mean(axis=1))
+    assert ys == pytest.approx([0.0, gap], abs=0.05)
+
+
+def test_short_fence_in_two_scans_is_dropped_and_does_not_pull_the_wall():
+    rng = np.random.default_rng(11)
+    wall = np.array([0.0, 0.0, 40.0, 0.0])
+    segs, scan = observe_walls(wall, 20, 0.03, rng)
+    fence = np.array([[15.0, 1.5, 19.0, 1.5], [15.2, 1.55, 19.1, 1.52]])   # 1.5 m in front of the wall
+    segs = np.vstack([segs, fence])
+    scan = np.concatenate([scan, [3, 4]])
+    result = fuse_proposed(segs, scan, ProposedConfig(min_support=4, eta_m=0.5))
+    assert len(result.segments) == 1
+    assert (result.labels[-2:] == -1).all()
+    assert np.abs(result.segments[0, [1, 3]]).max() < 0.05
+
+
+@pytest.mark.parametrize("wall", [[7.0, -10.0, 7.0, 20.0], [-10.0, 4.0, 25.0, 4.0]])
+def test_axis_aligned_walls(wall):
+    rng = np.random.default_rng(5)
+    wall = np.array(wall)
+    segs, scan = observe_walls(wall, 15, 0.02, rng)
+    result = fuse_proposed(segs, scan)
+    assert len(result.segments) == 1
+    assert _max_dist_to_line(result.segments[0], wall) < 0.03
+
+
+def test_building_corner_after_corner_optimisation():
+    rng = np.random.default_rng(2)
+    corner = np.array([10.0, 10.0])
+    walls = np.array([[0.0, 10.0, 10.0, 10.0], [10.0, 10.0, 10.0, -5.0]])
+    segs, scan = observe_walls(walls, 20, 0.03, rng, min_fraction=0.9, first_scan=np.array([0, 0]))
+    for mode in ("midpoint", "intersection"):
+        cfg = FeatmapConfig.model_validate({"fusion": {"corners": {"mode": mode}}})
+        result = fuse("proposed", segs, scan, cfg)
+        assert len(result.segments) == 2
+        ends = result.segments.reshape(-1, 2)
+        err = np.sort(np.hypot(*(ends - corner).T))[:2]
+        assert err.max() < 0.05, (mode, err)
+        if mode == "intersection":          # both endpoints moved to the same point
+            assert err[0] == pytest.approx(err[1], abs=1e-9)
+
+
+def test_shuffled_input_gives_the_same_map():
+    rng = np.random.default_rng(9)
+    walls = np.array([[0, 0, 30, 0], [0, 15, 30, 15], [35, 0, 35, 20], [-5, 40, 20, 60]], float)
+    segs, scan = observe_walls(walls, 12, 0.03, rng, first_scan=np.array([0, 0, 10, 20]))
+    a = fuse("proposed", segs, scan)
+    perm = rng.permutation(len(segs))
+    b = fuse("proposed", segs[perm], scan[perm])
+    assert np.allclose(a.segments, b.segments)
+    assert np.array_equal(a.support, b.support)
+    assert np.array_equal(a.labels[perm], b.labels)
+
+
+def test_empty_and_zero_length_inputs():
+    empty = fuse("proposed", np.zeros((0, 4)), np.zeros(0, int))
+    assert empty.segments.shape == (0, 4) and len(empty.labels) == 0
+    rng = np.random.default_rng(4)
+    segs, scan = observe_walls(np.array([0.0, 0.0, 20.0, 0.0]), 10, 0.02, rng)
+    segs = np.vstack([segs, [[3.0, 3.0, 3.0, 3.0]]])
+    scan = np.concatenate([scan, [2]])
+    result = fuse("proposed", segs, scan)
+    assert len(result.segments) == 1
+    assert result.skipped_zero_length == 1
+    assert result.labels[-1] == -1
+
+
+def test_same_scan_features_are_never_linked():
+    # Two identical segments from one scan: criteria hold, but the paper only compares k with k - i.
+    segs = np.array([[0, 0, 10, 0], [0, 0.01, 10, 0.01]], float)
+    result = fuse_proposed(segs, np.array([0, 0]), ProposedConfig(min_support=2))
+    assert len(result.segments) == 0
+    result = fuse_proposed(segs, np.array([0, 1]), ProposedConfig(min_support=2))
+    assert len(result.segments) == 1
+
+
+def test_criteria_values_for_hand_made_pair():
+    segs = np.array([[0, 0, 10, 0], [2, 1, 8, 1]], float)
+    crit = evaluate_pairs(segs, np.array([0]), np.array([1]))
+    assert crit.beta[0] == pytest.approx(0.0)
+    assert crit.epsilon[0] == pytest.approx(1.0)          # the small circle (r=3) lies inside the big one (r=5)
+    # d(O_i=(5,0), seg_j) = 1 and d(O_j=(5,1), seg_i) = 1
+    assert crit.d_max[0] == pytest.approx(1.0)
+    segs = np.array([[0, 0, 10, 0], [12, 0, 20, 0]], float)   # collinear, disjoint circles
+    crit = evaluate_pairs(segs, np.array([0]), np.array([1]))
+    assert crit.epsilon[0] == pytest.approx(0.0)
+    assert crit.d_max[0] == pytest.approx(max(point_segment_distance(np.array([[5.0, 0]]), segs[1:])[0], 7.0))
+
+
+def test_each_criterion_can_veto_a_link():
+    base = np.array([[0, 0, 10, 0], [0, 0.1, 10, 0.1]], float)
+    scan = np.array([0, 1])
+    ok = ProposedConfig(min_support=2)
+    assert len(fuse_proposed(base, scan, ok).segments) == 1
+    rotated = np.array([[0, 0, 10, 0], [0, -0.5, 10, 0.5]], float)       # beta ~ 5.7 deg
+    assert len(fuse_proposed(rotated, scan, ok.model_copy(update={"delta_deg": 5.0})).segments) == 0
+    shifted = np.array([[0, 0, 10, 0], [8, 0.1, 18, 0.1]], float)        # small circle overlap
+    assert len(fuse_proposed(shifted, scan, ok.model_copy(update={"gamma": 0.5, "eta_m": 10})).segments) == 0
+    apart = np.array([[0, 0, 10, 0], [0, 1.0, 10, 1.0]], float)          # 1 m apart, eta 0.5
+    assert len(fuse_proposed(apart, scan, ok).segments) == 0

@@ -1,0 +1,47 @@
+"""Every registered method, on the same small inputs with known answers."""
+
+import numpy as np
+import pytest
+
+from featmap.config import FeatmapConfig
+from featmap.errors import ConfigError
+from featmap.fusion import FUSION_METHODS, fuse
+from featmap.fusion.registry import get_method, resolve_methods
+from featmap.synthetic import observe_walls
+
+
+@pytest.mark.parametrize("name", list(FUSION_METHODS))
+def test_every_method_merges_one_wall_and_keeps_far_walls_apart(name):
+    rng = np.random.default_rng(0)
+    walls = np.array([[0, 0, 30, 0], [0, 15, 30, 15]], float)
+    segs, scan = observe_walls(walls, 20, 0.03, rng, min_fraction=0.7, first_scan=np.array([0, 0]))
+    result = fuse(name, segs, scan)
+    assert 2 <= len(result.segments) <= 4, name
+    on_wall = [np.abs(result.segments[:, [1, 3]] - y).max(axis=1) < 0.1 for y in (0.0, 15.0)]
+    assert on_wall[0].any() and on_wall[1].any()
+    assert (on_wall[0] | on_wall[1]).all()          # nothing lands between the two walls
+    assert result.support.sum() == (result.labels >= 0).sum()
+
+
+@pytest.mark.parametrize("name", list(FUSION_METHODS))
+def test_every_method_handles_empty_and_vertical(name):
+    empty = fuse(name, np.zeros((0, 4)), np.zeros(0, int))
+    assert empty.segments.shape == (0, 4)
+    rng = np.random.default_rng(1)
+    segs, scan = observe_walls(np.array([5.0, 0.0, 5.0, 20.0]), 10, 0.0, rng)
+    result = fuse(name, segs, scan)
+    assert len(result.segments) == 1
+    assert np.allclose(result.segments[0, [0, 2]], 5.0)
+
+
+def test_unknown_method_names_allowed_values():
+    with pytest.raises(ConfigError, match="unknown method 'kmeans'; allowed: proposed, meanshift, density"):
+        get_method("kmeans")
+    assert resolve_methods("all") == list(FUSION_METHODS)
+    assert resolve_methods("density,proposed") == ["density", "proposed"]
+
+
+def test_every_method_has_a_config_section():
+    cfg = FeatmapConfig()
+    for name, method in FUSION_METHODS.items():
+        assert method.config_of(cfg) is getattr(cfg.fusion, name)

@@ -1,0 +1,59 @@
+"""``featmap fuse`` end to end through the typer app."""
+
+import numpy as np
+from typer.testing import CliRunner
+
+from featmap.cli import app
+from featmap.config import load_config
+from featmap.io.segments_csv import SegmentTable, read_fused_csv, write_segments_csv
+from featmap.synthetic import observe_walls
+
+runner = CliRunner()
+
+
+def _segments_csv(path):
+    rng = np.random.default_rng(0)
+    walls = np.array([[0, 0, 30, 0], [0, 15, 30, 15], [30, 0, 30, -20]], float)
+    segs, scan = observe_walls(walls, 15, 0.03, rng, first_scan=np.zeros(3, int))
+    write_segments_csv(path, SegmentTable(scan=scan, segments=segs))
+    return path
+
+
+def test_fuse_writes_fused_csv_and_config(tmp_path):
+    seg = _segments_csv(tmp_path / "segments.csv")
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["fuse", str(seg), "--method", "proposed", "--out", str(out),
+                              "--set", "fusion.proposed.delta_deg=4"])
+    assert res.exit_code == 0, res.output
+    fused, support = read_fused_csv(out / "fused_proposed.csv")
+    assert len(fused) == 3 and support.tolist() == [15, 15, 15]
+    assert load_config(out / "config.yaml").fusion.proposed.delta_deg == 4
+    assert "features out" in res.output
+
+
+def test_fuse_all_methods(tmp_path):
+    seg = _segments_csv(tmp_path / "segments.csv")
+    res = runner.invoke(app, ["fuse", str(seg), "--method", "all", "--out", str(tmp_path / "o")])
+    assert res.exit_code == 0, res.output
+    for m in ("proposed", "meanshift", "density"):
+        assert (tmp_path / "o" / f"fused_{m}.csv").exists()
+
+
+def test_bad_inputs_fail_in_one_line_and_write_nothing(tmp_path):
+    seg = _segments_csv(tmp_path / "segments.csv")
+    bad = tmp_path / "bad.csv"
+    bad.write_text("scan,x1,y1,x2,y2\n0,1,2,3,4\n1,1,2,nan,4\n")
+    cases = [
+        (["fuse", str(bad), "--out", str(tmp_path / "o1")], "bad.csv:3: column 'x2'"),
+        (["fuse", str(seg), "--out", str(tmp_path / "o2"), "--set", "fusion.proposed.gamma=2"], "fusion.proposed.gamma"),
+        (["fuse", str(seg), "--out", str(tmp_path / "o3"), "--set", "fusion.proposed.eta_m=-0.1"], "fusion.proposed.eta_m"),
+        (["fuse", str(seg), "--out", str(tmp_path / "o4"), "--set", "fusion.bogus.x=1"], "unknown key 'fusion.bogus.x'"),
+        (["fuse", str(seg), "--out", str(tmp_path / "o5"), "--method", "kmeans"], "allowed: proposed, meanshift, density"),
+        (["fuse", str(tmp_path / "none.csv"), "--out", str(tmp_path / "o6")], "none.csv: file not found"),
+    ]
+    for n, (args, needle) in enumerate(cases, start=1):
+        res = runner.invoke(app, args)
+        assert res.exit_code == 2, (args, res.output)
+        lines = [line for line in res.output.splitlines() if line.strip()]
+        assert len(lines) == 1 and needle in lines[0], res.output
+        assert not (tmp_path / f"o{n}").exists()

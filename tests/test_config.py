@@ -1,0 +1,63 @@
+from pathlib import Path
+
+import pytest
+
+from featmap.config import FeatmapConfig, commented_yaml, load_config, save_config
+from featmap.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_shipped_default_yaml_matches_the_models():
+    assert load_config(ROOT / "configs" / "default.yaml") == FeatmapConfig()
+    # and it is exactly the rendering of the defaults (every key documented)
+    text = (ROOT / "configs" / "default.yaml").read_text()
+    assert commented_yaml() in text
+
+
+def test_precedence_defaults_yaml_set(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("fusion:\n  proposed:\n    delta_deg: 7\n    eta_m: 0.8\n")
+    cfg = load_config(path, ["fusion.proposed.delta_deg=3"])
+    assert cfg.fusion.proposed.delta_deg == 3          # --set wins over YAML
+    assert cfg.fusion.proposed.eta_m == 0.8            # YAML wins over defaults
+    assert cfg.fusion.proposed.gamma == FeatmapConfig().fusion.proposed.gamma
+
+
+def test_save_and_reload_round_trip(tmp_path):
+    cfg = load_config(None, ["fusion.corners.mode=midpoint", "extraction.seed=4"])
+    save_config(cfg, tmp_path / "config.yaml")
+    assert load_config(tmp_path / "config.yaml") == cfg
+
+
+@pytest.mark.parametrize("override,message", [
+    ("fusion.proposed.gamma=1.5", r"'fusion.proposed.gamma' input should be less than or equal to 1 \(got 1.5\)"),
+    ("fusion.proposed.eta_m=-1", r"'fusion.proposed.eta_m' input should be greater than or equal to 0"),
+    ("fusion.proposed.delta=5", r"unknown key 'fusion.proposed.delta' \(did you mean 'fusion.proposed.delta_deg'\?\)"),
+    ("fusion.corners.mode=bogus", r"'fusion.corners.mode' must be one of 'midpoint', 'intersection' or 'none'"),
+    ("fusion.proposed.min_support=many", r"'fusion.proposed.min_support' input should be a valid integer"),
+    ("novalue", r"expected KEY=VALUE"),
+])
+def test_bad_values_name_the_key_and_the_allowed_values(override, message):
+    with pytest.raises(ConfigError, match=message):
+        load_config(None, [override])
+
+
+def test_unknown_key_in_yaml(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text("fusion:\n  proposed:\n    gama: 0.2\n")
+    with pytest.raises(ConfigError, match=r"bad.yaml: unknown key 'fusion.proposed.gama' \(did you mean 'fusion.proposed.gamma'\?\)"):
+        load_config(path)
+
+
+def test_missing_and_malformed_yaml(tmp_path):
+    with pytest.raises(ConfigError, match="config file not found"):
+        load_config(tmp_path / "nope.yaml")
+    bad = tmp_path / "broken.yaml"
+    bad.write_text("fusion: [1, 2\n")
+    with pytest.raises(ConfigError, match=r"broken.yaml:\d+: not valid YAML"):
+        load_config(bad)
+    scalar = tmp_path / "scalar.yaml"
+    scalar.write_text("42\n")
+    with pytest.raises(ConfigError, match="expected a mapping"):
+        load_config(scalar)
