@@ -1,0 +1,69 @@
+"""KITTI's local metric frame <-> WGS84, exactly as pykitti builds it from OXTS.
+
+pykitti projects every OXTS packet with a Mercator projection whose scale is ``cos(lat0)`` of the
+*first* packet, and puts the origin at the first packet's position (x east, y north, metres).
+:class:`GeoFrame` holds that first packet's latitude/longitude and converts both ways.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+EARTH_RADIUS_M = 6378137.0
+"""The earth radius pykitti uses in its Mercator projection."""
+
+
+def latlon_to_mercator(lat_deg, lon_deg, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """pykitti's Mercator projection of WGS84 degrees to metres (``scale = cos(lat0)``)."""
+    lat = np.asarray(lat_deg, float)
+    lon = np.asarray(lon_deg, float)
+    mx = scale * lon * np.pi * EARTH_RADIUS_M / 180.0
+    my = scale * EARTH_RADIUS_M * np.log(np.tan((90.0 + lat) * np.pi / 360.0))
+    return mx, my
+
+
+def mercator_to_latlon(mx, my, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`latlon_to_mercator`: metres to WGS84 degrees."""
+    mx = np.asarray(mx, float)
+    my = np.asarray(my, float)
+    lon = mx * 180.0 / (np.pi * EARTH_RADIUS_M * scale)
+    lat = 360.0 / np.pi * np.arctan(np.exp(my / (scale * EARTH_RADIUS_M))) - 90.0
+    return lat, lon
+
+
+@dataclass(frozen=True)
+class GeoFrame:
+    """The local metric frame of one drive: origin and Mercator scale from its first OXTS packet.
+
+    Attributes:
+        lat0_deg, lon0_deg: WGS84 position of the first OXTS packet (the local origin).
+        alt0_m: its altitude (the local z origin).
+    """
+
+    lat0_deg: float
+    lon0_deg: float
+    alt0_m: float = 0.0
+
+    @property
+    def scale(self) -> float:
+        return float(np.cos(np.deg2rad(self.lat0_deg)))
+
+    def _origin(self) -> tuple[float, float]:
+        mx, my = latlon_to_mercator(self.lat0_deg, self.lon0_deg, self.scale)
+        return float(mx), float(my)
+
+    def to_local(self, lat_deg, lon_deg) -> tuple[np.ndarray, np.ndarray]:
+        """WGS84 degrees -> local x east, y north (metres)."""
+        mx, my = latlon_to_mercator(lat_deg, lon_deg, self.scale)
+        ox, oy = self._origin()
+        return mx - ox, my - oy
+
+    def to_wgs84(self, x, y) -> tuple[np.ndarray, np.ndarray]:
+        """Local x east, y north (metres) -> WGS84 (lat, lon) degrees."""
+        ox, oy = self._origin()
+        return mercator_to_latlon(np.asarray(x, float) + ox, np.asarray(y, float) + oy, self.scale)
+
+    def to_dict(self) -> dict:
+        return {"lat0_deg": self.lat0_deg, "lon0_deg": self.lon0_deg, "alt0_m": self.alt0_m}

@@ -1,0 +1,342 @@
+"""Drive a simulated vehicle through a world and write a KITTI raw drive with its ground truth.
+
+The vehicle's IMU follows the route at the sensor rate; the velodyne sits on it through a
+KITTI-like ``T_velo_imu`` (velodyne origin ``sensor.height_m`` above flat ground), so
+``T_w_velo = T_w_imu @ inv(T_velo_imu)`` exactly as pykitti users compute it. Rays are cast from the
+true velodyne pose (no motion distortion: every scan is an instantaneous sweep); the OXTS packets
+carry the true pose, or a perturbed one with ``pose_noise`` (a smooth Gauss-Markov error with a 2 s
+correlation time, the way GPS/INS errors drift rather than jump).
+
+Ground truth written to ``<drive>/truth/``:
+
+- ``walls.csv``: every building wall in the local frame, its vertex labels, and what the drive
+  observed of it (returns within ``truth_range_m``, observed intervals along the wall);
+- ``objects_local.json`` / ``objects.geojson``: every object with its kind (local frame / WGS84);
+- ``footprints.geojson``: building footprints (WGS84), usable with ``featmap evaluate --truth``;
+- ``trajectory.csv`` and ``simulation.json`` (parameters, seed, geo origin).
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime as dt
+import io
+import json
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable
+
+import numpy as np
+
+from featmap.errors import FeatmapError
+from featmap.geo import GeoFrame, latlon_to_mercator, mercator_to_latlon
+from featmap.io.atomic import atomic_write_text
+from featmap.io.kitti_raw import (drive_paths, format_oxts_packet, write_calib_file, write_timestamps,
+                                  write_velo_bin)
+from featmap.simulation.scene import REFLECTANCE, build_scene, cast
+from featmap.simulation.sensors import SensorPreset
+from featmap.simulation.trajectory import sample_poses
+from featmap.simulation.worlds import World, _open_ring
+
+SIM_DATE = "2000_01_01"
+"""Simulated drives use this date, so they never collide with a real KITTI drive."""
+COVERAGE_BIN_M = 0.5
+MIN_BIN_RETURNS = 3
+
+
+def rotation_xyz(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """pykitti's rotation ``Rz(yaw) @ Ry(pitch) @ Rx(roll)``."""
+    cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def synthetic_T_velo_imu() -> np.ndarray:
+    """A KITTI-like IMU-to-velodyne transform (velodyne 0.80 m above and 0.81 m ahead of the IMU, ~0.85 deg tilt)."""
+    T = np.eye(4)
+    T[:3, :3] = rotation_xyz(0.0148, -0.0020, 0.0008)
+    T[:3, 3] = (-0.81, 0.32, -0.80)
+    return T
+
+
+def write_calibration(calib_dir: Path, T_velo_imu: np.ndarray) -> None:
+    """The three KITTI calibration files (synthetic, KITTI-like values; cameras are not simulated)."""
+    write_calib_file(calib_dir / "calib_imu_to_velo.txt",
+                     {"calib_time": "01-Jan-2000 00:00:00", "R": T_velo_imu[:3, :3], "T": T_velo_imu[:3, 3]})
+    R_cam_velo = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+    write_calib_file(calib_dir / "calib_velo_to_cam.txt",
+                     {"calib_time": "01-Jan-2000 00:00:00", "R": R_cam_velo, "T": np.array([0.0, -0.08, -0.27]),
+                      "delta_f": np.zeros(2), "delta_c": np.zeros(2)})
+    cam: dict = {"calib_time": "01-Jan-2000 00:00:00", "corner_dist": np.array([0.0995])}
+    for k, bx in enumerate((0.0, -0.54, 0.06, -0.48)):
+        K = np.array([[720.0, 0, 610.0], [0, 720.0, 175.0], [0, 0, 1.0]])
+        cam.update({f"S_{k:02d}": np.array([1392.0, 512.0]), f"K_{k:02d}": K, f"D_{k:02d}": np.zeros(5),
+                    f"R_{k:02d}": np.eye(3), f"T_{k:02d}": np.array([bx, 0.0, 0.0]),
+                    f"S_rect_{k:02d}": np.array([1242.0, 375.0]), f"R_rect_{k:02d}": np.eye(3),
+                    f"P_rect_{k:02d}": np.hstack([K, [[bx * 720.0], [0.0], [0.0]]])})
+    write_calib_file(calib_dir / "calib_cam_to_cam.txt", cam)
+
+
+def gauss_markov(rng: np.random.Generator, n: int, sigma: float, dt_s: float, tau_s: float = 2.0) -> np.ndarray:
+    """(n,) stationary first-order Gauss-Markov sequence with std ``sigma`` and correlation time ``tau_s``."""
+    if sigma <= 0 or n == 0:
+        return np.zeros(n)
+    a = np.exp(-dt_s / tau_s)
+    out = np.empty(n)
+    out[0] = rng.normal(0, sigma)
+    shocks = rng.normal(0, sigma * np.sqrt(1 - a * a), n)
+    for k in range(1, n):
+        out[k] = a * out[k - 1] + shocks[k]
+    return out
+
+
+@dataclass(frozen=True)
+class SimulatedDrive:
+    """Where a simulated drive was written."""
+
+    root: Path          # KITTI raw root (contains DATE/)
+    date: str
+    drive_id: str
+    n_frames: int
+
+    @property
+    def drive(self) -> str:
+        return f"{self.date}_drive_{self.drive_id}"
+
+    @property
+    def drive_dir(self) -> Path:
+        return drive_paths(self.root, self.date, self.drive_id)[1]
+
+
+def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_frames: int | None = None,
+                   noise_m: float = 0.02, dropout: float = 0.0, pose_noise: tuple[float, float] = (0.0, 0.0),
+                   seed: int = 0, drive_id: str = "0001", truth_range_m: float = 50.0,
+                   progress: Callable[[Iterable, int], Iterable] | None = None) -> SimulatedDrive:
+    """Simulate ``world`` and write the drive under ``out_root`` (KITTI raw layout).
+
+    The drive is written into a hidden temporary folder and moved into place at the end, so an
+    interrupted simulation never leaves a drive that looks complete.
+
+    Args:
+        world: validated world.
+        out_root: KITTI raw root; the drive lands in ``out_root/2000_01_01/2000_01_01_drive_<id>_sync``.
+        sensor: beam pattern, range and mounting height.
+        n_frames: cap on the number of frames (default: the whole route).
+        noise_m: standard deviation of the Gaussian range noise (metres).
+        dropout: probability that a return is lost.
+        pose_noise: (position std in metres, yaw std in degrees) of the error added to the OXTS poses.
+        seed: seeds every random draw; the same seed writes byte-identical files.
+        truth_range_m: wall returns closer than this count as observations in the ground truth.
+        progress: wraps the frame loop, e.g. ``lambda it, n: rich.progress.track(it, total=n)``.
+    """
+    if not (0.0 <= dropout < 1.0):
+        raise FeatmapError(f"--dropout {dropout}: must be in [0, 1)")
+    if noise_m < 0 or pose_noise[0] < 0 or pose_noise[1] < 0:
+        raise FeatmapError("--noise and --pose-noise must be non-negative")
+    rng = np.random.default_rng(seed)
+    out_root = Path(out_root)
+    calib_dir, final_dir = drive_paths(out_root, SIM_DATE, drive_id)
+    if final_dir.exists():
+        raise FeatmapError(f"{final_dir}: drive already exists; choose another --out or remove it")
+    tmp_dir = calib_dir / f".{final_dir.name}.partial"
+    if tmp_dir.exists():
+        shutil.rmtree(tmp_dir)
+
+    dt_s = 1.0 / sensor.rate_hz
+    xy, yaw = sample_poses(np.asarray(world.route.waypoints), world.route.speed_mps, world.route.turn_radius_m,
+                           sensor.rate_hz, n_frames)
+    n = len(xy)
+    if n < 2:
+        raise FeatmapError(f"{world.source or world.name}: the route is too short for two frames")
+    T_velo_imu = synthetic_T_velo_imu()
+    T_imu_velo = np.linalg.inv(T_velo_imu)
+    imu_z = sensor.height_m - T_imu_velo[2, 3]           # puts the velodyne origin at sensor.height_m
+    p0 = np.array([xy[0, 0], xy[0, 1], imu_z])
+
+    # Geographic anchor: the first OXTS packet is at the world's geo origin shifted to the first pose.
+    s0 = np.cos(np.deg2rad(world.geo_origin.lat))
+    mx, my = latlon_to_mercator(world.geo_origin.lat, world.geo_origin.lon, s0)
+    lat0, lon0 = mercator_to_latlon(mx + p0[0], my + p0[1], s0)
+    geo = GeoFrame(float(lat0), float(lon0), 100.0)
+
+    scene, index = build_scene(world)
+    directions = sensor.ray_directions()
+    edges = index.edges
+    n_bins = np.array([max(1, int(np.ceil(np.linalg.norm(e["q"] - e["p"]) / COVERAGE_BIN_M))) for e in edges], np.int64)
+    bin_offset = np.concatenate([[0], np.cumsum(n_bins)]).astype(np.int64)
+    coverage = np.zeros(int(bin_offset[-1]), np.int64)
+    edge_p = np.array([e["p"] for e in edges]).reshape(-1, 2)
+    edge_u = np.array([(e["q"] - e["p"]) / np.linalg.norm(e["q"] - e["p"]) for e in edges]).reshape(-1, 2)
+    kind_of_gid = index.kinds
+
+    err_x = gauss_markov(rng, n, pose_noise[0], dt_s)
+    err_y = gauss_markov(rng, n, pose_noise[0], dt_s)
+    err_yaw = gauss_markov(rng, n, np.deg2rad(pose_noise[1]), dt_s)
+
+    drive_tmp = tmp_dir
+    velo_dir = drive_tmp / "velodyne_points" / "data"
+    oxts_dir = drive_tmp / "oxts" / "data"
+    velo_dir.mkdir(parents=True)
+    oxts_dir.mkdir(parents=True)
+    frames = range(n) if progress is None else progress(range(n), n)
+    yaw_rate = np.gradient(np.unwrap(yaw), dt_s)
+    speed = world.route.speed_mps
+    for k in frames:
+        T_w_imu = np.eye(4)
+        T_w_imu[:3, :3] = rotation_xyz(0.0, 0.0, yaw[k])
+        T_w_imu[:3, 3] = (xy[k, 0], xy[k, 1], imu_z)
+        T_w_velo = T_w_imu @ T_imu_velo
+        R, origin = T_w_velo[:3, :3], T_w_velo[:3, 3]
+        t_hit, gid, prim = cast(scene, origin, directions @ R.T)
+        keep = np.isfinite(t_hit) & (t_hit <= sensor.max_range_m) & (t_hit >= sensor.min_range_m)
+        if dropout > 0:
+            keep &= rng.random(len(t_hit)) >= dropout
+        rng_noise = rng.normal(0.0, noise_m, len(t_hit)) if noise_m > 0 else np.zeros(len(t_hit))
+        r = t_hit[keep] + rng_noise[keep]
+        pts = directions[keep] * r[:, None]
+        kinds = gid[keep]
+        refl = np.zeros(len(r))
+        for g, kind in kind_of_gid.items():
+            refl[kinds == g] = REFLECTANCE[kind]
+        refl = np.clip(refl + rng.normal(0.0, 0.03, len(r)), 0.0, 1.0)
+        write_velo_bin(velo_dir / f"{k:010d}.bin", np.column_stack([pts, refl]))
+
+        # Ground truth: which stretches of which walls this scan saw (true geometry, no noise).
+        wall = keep & (gid == index.wall_geometry_id) & (t_hit <= truth_range_m)
+        if wall.any():
+            hit_w = origin + (directions[wall] @ R.T) * t_hit[wall, None]
+            e = index.wall_edge_of_triangle[prim[wall]]
+            s = np.einsum("ij,ij->i", hit_w[:, :2] - edge_p[e], edge_u[e])
+            b = np.clip((s / COVERAGE_BIN_M).astype(np.int64), 0, n_bins[e] - 1)
+            coverage += np.bincount(bin_offset[e] + b, minlength=len(coverage))
+
+        # OXTS: the (possibly perturbed) IMU pose of this frame.
+        noisy_x, noisy_y, noisy_yaw = xy[k, 0] + err_x[k], xy[k, 1] + err_y[k], yaw[k] + err_yaw[k]
+        lat, lon = geo.to_wgs84(noisy_x - p0[0], noisy_y - p0[1])
+        wrapped_yaw = (noisy_yaw + np.pi) % (2 * np.pi) - np.pi
+        packet = {"lat": float(lat), "lon": float(lon), "alt": geo.alt0_m, "roll": 0.0, "pitch": 0.0,
+                  "yaw": wrapped_yaw, "vn": speed * np.sin(yaw[k]), "ve": speed * np.cos(yaw[k]), "vf": speed,
+                  "az": 9.81, "ay": speed * yaw_rate[k], "al": speed * yaw_rate[k], "au": 9.81,
+                  "wz": yaw_rate[k], "wu": yaw_rate[k], "pos_accuracy": max(0.02, pose_noise[0]),
+                  "vel_accuracy": 0.02, "navstat": 4, "numsats": 10, "posmode": 5, "velmode": 5, "orimode": 6}
+        (oxts_dir / f"{k:010d}.txt").write_text(format_oxts_packet(packet))
+
+    start = dt.datetime(2000, 1, 1, 12, 0, 0)
+    seconds = np.arange(n) * dt_s
+    for sub in ("velodyne_points", "oxts"):
+        write_timestamps(drive_tmp / sub / "timestamps.txt", seconds, start)
+    (drive_tmp / "oxts" / "dataformat.txt").write_text(_OXTS_DATAFORMAT)
+    write_calibration(calib_dir, T_velo_imu)
+    _write_truth(drive_tmp / "truth", world, edges, coverage, bin_offset, n_bins, p0, geo, xy, yaw,
+                 err_x, err_y, err_yaw, {
+                     "world": world.name, "world_source": world.source, "sensor": sensor.name,
+                     "noise_m": noise_m, "dropout": dropout, "pose_noise": list(pose_noise), "seed": seed,
+                     "frames": n, "truth_range_m": truth_range_m, "speed_mps": speed,
+                     "geo_origin": geo.to_dict(), "world_offset_xy": [float(p0[0]), float(p0[1])],
+                 })
+    os.replace(drive_tmp, final_dir)
+    return SimulatedDrive(out_root, SIM_DATE, drive_id, n)
+
+
+def observed_intervals(counts: np.ndarray, min_returns: int = MIN_BIN_RETURNS, bin_m: float = COVERAGE_BIN_M,
+                       length: float | None = None) -> list[tuple[float, float]]:
+    """Merge coverage bins with at least ``min_returns`` hits into intervals (metres along the wall)."""
+    seen = counts >= min_returns
+    out = []
+    k = 0
+    while k < len(seen):
+        if seen[k]:
+            j = k
+            while j + 1 < len(seen) and seen[j + 1]:
+                j += 1
+            end = (j + 1) * bin_m if length is None else min((j + 1) * bin_m, length)
+            out.append((k * bin_m, end))
+            k = j + 1
+        else:
+            k += 1
+    return out
+
+
+def _write_truth(folder: Path, world: World, edges, coverage, bin_offset, n_bins, p0, geo: GeoFrame,
+                 xy, yaw, err_x, err_y, err_yaw, params: dict) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    off = p0[:2]
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["building", "ring", "edge", "x1", "y1", "x2", "y2", "height", "label_1", "label_2",
+                "n_returns", "observed_m", "observed_intervals"])
+    for k, e in enumerate(edges):
+        counts = coverage[bin_offset[k]:bin_offset[k] + n_bins[k]]
+        length = float(np.linalg.norm(e["q"] - e["p"]))
+        intervals = observed_intervals(counts, length=length)
+        observed = sum(b - a for a, b in intervals)
+        p, q = e["p"] - off, e["q"] - off
+        w.writerow([e["building"], e["ring"], e["edge"], f"{p[0]:.4f}", f"{p[1]:.4f}", f"{q[0]:.4f}", f"{q[1]:.4f}",
+                    e["height"], e["label_p"], e["label_q"], int(counts.sum()), f"{observed:.2f}",
+                    ";".join(f"{a:.2f}-{b:.2f}" for a, b in intervals)])
+    atomic_write_text(folder / "walls.csv", buf.getvalue())
+
+    objects_local, features = [], []
+    for n, obj in enumerate(world.objects):
+        oid = obj.id or f"{obj.kind}{n}"
+        if obj.kind == "building":
+            rings = [np.asarray(_open_ring(obj.footprint), float)] + [np.asarray(_open_ring(h), float) for h in obj.holes]
+            local = [(r - off).round(4).tolist() for r in rings]
+            geom_local = {"type": "Polygon", "coordinates": local}
+            extra = {"height": obj.height, "vertex_labels": obj.vertex_labels}
+        elif obj.kind == "fence":
+            geom_local = {"type": "LineString", "coordinates": (np.asarray(obj.line) - off).round(4).tolist()}
+            extra = {"height": obj.height}
+        elif obj.kind == "car":
+            L, W, H = obj.size
+            c, s = np.cos(np.deg2rad(obj.heading_deg)), np.sin(np.deg2rad(obj.heading_deg))
+            corners = np.array([[-L / 2, -W / 2], [L / 2, -W / 2], [L / 2, W / 2], [-L / 2, W / 2]]) @ np.array([[c, s], [-s, c]])
+            geom_local = {"type": "Polygon", "coordinates": [(corners + np.asarray(obj.position) - off).round(4).tolist()]}
+            extra = {"height": H}
+        else:
+            geom_local = {"type": "Point", "coordinates": (np.asarray(obj.position) - off).round(4).tolist()}
+            extra = {"radius": getattr(obj, "radius", getattr(obj, "trunk_radius", 0.2))}
+        objects_local.append({"id": oid, "kind": obj.kind, "geometry": geom_local, **extra})
+        features.append({"type": "Feature", "properties": {"id": oid, "kind": obj.kind, **extra},
+                         "geometry": _geometry_to_wgs84(geom_local, geo)})
+    atomic_write_text(folder / "objects_local.json", json.dumps({"frame": "local (pykitti), metres",
+                                                                  "objects": objects_local}, indent=1))
+    fc = {"type": "FeatureCollection", "features": features}
+    atomic_write_text(folder / "objects.geojson", json.dumps(fc))
+    buildings = {"type": "FeatureCollection", "features": [f for f in features if f["properties"]["kind"] == "building"]}
+    atomic_write_text(folder / "footprints.geojson", json.dumps(buildings))
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["frame", "x", "y", "yaw", "oxts_x", "oxts_y", "oxts_yaw"])
+    for k in range(len(xy)):
+        w.writerow([k, f"{xy[k, 0] - off[0]:.4f}", f"{xy[k, 1] - off[1]:.4f}", f"{yaw[k]:.6f}",
+                    f"{xy[k, 0] + err_x[k] - off[0]:.4f}", f"{xy[k, 1] + err_y[k] - off[1]:.4f}", f"{yaw[k] + err_yaw[k]:.6f}"])
+    atomic_write_text(folder / "trajectory.csv", buf.getvalue())
+    atomic_write_text(folder / "simulation.json", json.dumps(params, indent=1, default=str))
+
+
+def _geometry_to_wgs84(geom: dict, geo: GeoFrame) -> dict:
+    def conv(coords):
+        arr = np.asarray(coords, float)
+        lat, lon = geo.to_wgs84(arr[..., 0], arr[..., 1])
+        return np.stack([lon, lat], axis=-1).round(9).tolist()
+
+    if geom["type"] == "Polygon":
+        rings = []
+        for ring in geom["coordinates"]:
+            closed = list(ring) + [ring[0]]
+            rings.append(conv(closed))
+        return {"type": "Polygon", "coordinates": rings}
+    return {"type": geom["type"], "coordinates": conv(geom["coordinates"])}
+
+
+_OXTS_DATAFORMAT = "\n".join([
+    "lat:   latitude of the oxts-unit (deg)", "lon:   longitude of the oxts-unit (deg)",
+    "alt:   altitude of the oxts-unit (m)", "roll:  roll angle (rad)", "pitch: pitch angle (rad)",
+    "yaw:   heading (rad), 0 = east, positive = counter clockwise",
+    "(the remaining 24 fields follow the KITTI raw OXTS format; see featmap.io.kitti_raw.OXTS_FIELDS)", ""])

@@ -1,0 +1,297 @@
+"""Simulator worlds: YAML or GeoJSON files describing buildings, clutter and the vehicle's route.
+
+A world is data, not code. The YAML form (coordinates in metres, x east, y north)::
+
+    name: prescan_case1
+    geo_origin: {lat: 49.0110, lon: 8.4240}   # approximate WGS84 of (0, 0)
+    route: {waypoints: [[-30, -15], [60, -15]], speed_mps: 8, turn_radius_m: 8}
+    objects:
+      - {id: A, kind: building, footprint: [[0, 0], [30, 0], [30, 20], [0, 20]], height: 12,
+         vertex_labels: [a, b, c, d]}                                  # holes: [[...]] for courtyards
+      - {id: f1, kind: fence, line: [[0, -5], [10, -5]], height: 1.2}
+      - {id: c1, kind: car, position: [5, -9], heading_deg: 0}        # size: [4.5, 1.8, 1.5]
+      - {id: p1, kind: pole, position: [12, -8], height: 6}
+      - {id: t1, kind: tree, position: [20, -8]}
+
+The GeoJSON form (WGS84, e.g. OpenStreetMap building footprints exported as GeoJSON): Polygons are
+buildings (``properties.height`` in metres, else ``building:levels`` x 3 m, else 10 m), a LineString
+with ``properties.kind: route`` is the route, other LineStrings with ``kind: fence`` are fences,
+Points with ``kind`` car, pole or tree are clutter.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Literal, Optional, Union
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+
+from featmap.errors import WorldError
+
+WORLDS_DIR = Path(__file__).resolve().parents[1] / "resources" / "worlds"
+KINDS = ("building", "fence", "car", "pole", "tree")
+
+
+class _Obj(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    id: Optional[str] = None
+
+
+class Building(_Obj):
+    kind: Literal["building"]
+    footprint: list[tuple[float, float]] = Field(min_length=3)
+    holes: list[list[tuple[float, float]]] = []
+    height: float = Field(10.0, gt=0)
+    vertex_labels: Optional[list[str]] = None
+
+
+class Fence(_Obj):
+    kind: Literal["fence"]
+    line: list[tuple[float, float]] = Field(min_length=2)
+    height: float = Field(1.2, gt=0)
+    thickness: float = Field(0.08, gt=0)
+
+
+class Car(_Obj):
+    kind: Literal["car"]
+    position: tuple[float, float]
+    heading_deg: float = 0.0
+    size: tuple[float, float, float] = (4.5, 1.8, 1.5)
+
+
+class Pole(_Obj):
+    kind: Literal["pole"]
+    position: tuple[float, float]
+    radius: float = Field(0.12, gt=0)
+    height: float = Field(6.0, gt=0)
+
+
+class Tree(_Obj):
+    kind: Literal["tree"]
+    position: tuple[float, float]
+    trunk_radius: float = Field(0.2, gt=0)
+    trunk_height: float = Field(2.5, gt=0)
+    crown_radius: float = Field(2.0, gt=0)
+
+
+WorldObject = Annotated[Union[Building, Fence, Car, Pole, Tree], Field(discriminator="kind")]
+_OBJECT = TypeAdapter(WorldObject)
+
+
+class Route(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    waypoints: list[tuple[float, float]] = Field(min_length=2)
+    speed_mps: float = Field(8.0, gt=0)
+    turn_radius_m: float = Field(8.0, ge=0)
+
+
+class GeoOrigin(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    lat: float = Field(49.0110, ge=-85, le=85)
+    lon: float = Field(8.4240, ge=-180, le=180)
+
+
+class World(BaseModel):
+    """A validated world: objects in a local metric frame (x east, y north, metres)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    name: str
+    description: str = ""
+    geo_origin: GeoOrigin = GeoOrigin()
+    route: Route
+    objects: list[WorldObject] = []
+    source: Optional[str] = None
+
+    def of_kind(self, kind: str) -> list:
+        return [o for o in self.objects if o.kind == kind]
+
+    @property
+    def buildings(self) -> list[Building]:
+        return self.of_kind("building")
+
+
+def _label(index: int, raw) -> str:
+    if isinstance(raw, dict):
+        name = raw.get("id")
+        kind = raw.get("kind", "?")
+        return f"object {name!r} ({kind})" if name is not None else f"object #{index} ({kind})"
+    return f"object #{index}"
+
+
+def _check_object(path: str, index: int, raw) -> object:
+    where = f"{path}: {_label(index, raw)}"
+    if not isinstance(raw, dict):
+        raise WorldError(f"{where}: expected a mapping with a 'kind'")
+    kind = raw.get("kind")
+    if kind not in KINDS:
+        raise WorldError(f"{where}: unknown kind {kind!r}; allowed: {', '.join(KINDS)}")
+    try:
+        obj = _OBJECT.validate_python(raw)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        key = ".".join(str(p) for p in err["loc"][1:]) or "value"
+        raise WorldError(f"{where}: '{key}' {err['msg'][0].lower() + err['msg'][1:]} (got {err.get('input')!r})") from None
+    if isinstance(obj, Building):
+        from shapely.geometry import Polygon
+        from shapely.validation import explain_validity
+
+        poly = Polygon(obj.footprint, obj.holes)
+        if not poly.is_valid:
+            raise WorldError(f"{where}: invalid footprint ({explain_validity(poly)}); "
+                             "footprints must be simple polygons (no self-intersection)")
+        if poly.area <= 0:
+            raise WorldError(f"{where}: footprint has no area")
+        if obj.vertex_labels is not None and len(obj.vertex_labels) != len(_open_ring(obj.footprint)):
+            raise WorldError(f"{where}: {len(obj.vertex_labels)} vertex_labels for {len(_open_ring(obj.footprint))} vertices")
+    return obj
+
+
+def _open_ring(points) -> list:
+    points = [tuple(p) for p in points]
+    return points[:-1] if len(points) > 1 and points[0] == points[-1] else points
+
+
+def world_from_dict(data: dict, path: str) -> World:
+    """Validate a world mapping; every problem is a one-line WorldError naming ``path`` and the object."""
+    if not isinstance(data, dict):
+        raise WorldError(f"{path}: expected a mapping with name, route and objects")
+    raw_objects = data.get("objects") or []
+    if not isinstance(raw_objects, list):
+        raise WorldError(f"{path}: 'objects' must be a list")
+    objects = [_check_object(path, i, raw) for i, raw in enumerate(raw_objects)]
+    rest = {k: v for k, v in data.items() if k != "objects"}
+    rest.setdefault("name", Path(path).stem)
+    if "route" not in rest:
+        raise WorldError(f"{path}: no 'route' (the vehicle's waypoints)")
+    try:
+        return World.model_validate({**rest, "objects": [o.model_dump() for o in objects], "source": str(path)})
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        key = ".".join(str(p) for p in err["loc"])
+        if err["type"] == "extra_forbidden":
+            raise WorldError(f"{path}: unknown key '{key}'") from None
+        raise WorldError(f"{path}: '{key}' {err['msg'][0].lower() + err['msg'][1:]} (got {err.get('input')!r})") from None
+
+
+def _world_from_geojson(data: dict, path: str) -> dict:
+    from featmap.geo import GeoFrame
+
+    features = data.get("features")
+    if data.get("type") != "FeatureCollection" or not isinstance(features, list):
+        raise WorldError(f"{path}: expected a GeoJSON FeatureCollection")
+    route_feats = [f for f in features if (f.get("properties") or {}).get("kind") == "route"]
+    if not route_feats:
+        raise WorldError(f"{path}: no LineString feature with properties.kind = 'route'")
+    lon0, lat0 = route_feats[0]["geometry"]["coordinates"][0][:2]
+    frame = GeoFrame(lat0, lon0)
+
+    def local(coords):
+        arr = np.asarray(coords, float)[:, :2]
+        x, y = frame.to_local(arr[:, 1], arr[:, 0])
+        return [[float(a), float(b)] for a, b in zip(x, y)]
+
+    objects = []
+    for n, feat in enumerate(features):
+        props = dict(feat.get("properties") or {})
+        geom = feat.get("geometry") or {}
+        kind = props.pop("kind", None)
+        gtype = geom.get("type")
+        ident = props.pop("id", None) or feat.get("id") or f"feature{n}"
+        if kind == "route":
+            continue
+        if gtype in ("Polygon", "MultiPolygon"):
+            polys = [geom["coordinates"]] if gtype == "Polygon" else geom["coordinates"]
+            height = props.get("height")
+            if height is None and props.get("building:levels") is not None:
+                height = float(props["building:levels"]) * 3.0
+            for k, rings in enumerate(polys):
+                obj = {"id": str(ident) if len(polys) == 1 else f"{ident}.{k}", "kind": kind or "building",
+                       "footprint": local(rings[0]), "holes": [local(r) for r in rings[1:]]}
+                if height is not None:
+                    obj["height"] = float(height)
+                objects.append(obj)
+        elif gtype == "LineString":
+            objects.append({"id": str(ident), "kind": kind or "fence", "line": local(geom["coordinates"]),
+                            **({"height": float(props["height"])} if "height" in props else {})})
+        elif gtype == "Point":
+            objects.append({"id": str(ident), "kind": kind, "position": local([geom["coordinates"]])[0]})
+        else:
+            raise WorldError(f"{path}: feature {ident!r}: unsupported geometry type {gtype!r}")
+    rp = route_feats[0].get("properties") or {}
+    route = {"waypoints": local(route_feats[0]["geometry"]["coordinates"])}
+    for key in ("speed_mps", "turn_radius_m"):
+        if key in rp:
+            route[key] = rp[key]
+    return {"name": data.get("name") or Path(path).stem, "geo_origin": {"lat": lat0, "lon": lon0},
+            "route": route, "objects": objects}
+
+
+def builtin_worlds() -> list[str]:
+    return sorted(p.stem for p in WORLDS_DIR.glob("*.yaml"))
+
+
+def resolve_world_path(name_or_file: str | Path) -> Path:
+    """A built-in world name (``residential``) or a path to a YAML/GeoJSON file."""
+    path = Path(name_or_file)
+    if path.suffix.lower() in (".yaml", ".yml", ".geojson", ".json") or path.exists():
+        if not path.exists():
+            raise WorldError(f"{path}: world file not found")
+        return path
+    builtin = WORLDS_DIR / f"{name_or_file}.yaml"
+    if builtin.exists():
+        return builtin
+    raise WorldError(f"unknown world {str(name_or_file)!r}; built-in worlds: {', '.join(builtin_worlds())}, "
+                     "or give a .yaml/.geojson file")
+
+
+def load_world(name_or_file: str | Path) -> World:
+    """Load and validate a world by built-in name or file path."""
+    path = resolve_world_path(name_or_file)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise WorldError(f"{path}: cannot read ({exc.strerror})") from None
+    if path.suffix.lower() in (".geojson", ".json"):
+        try:
+            data = _world_from_geojson(json.loads(text), str(path))
+        except json.JSONDecodeError as exc:
+            raise WorldError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg})") from None
+    else:
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            where = f":{mark.line + 1}" if mark is not None else ""
+            raise WorldError(f"{path}{where}: not valid YAML") from None
+    return world_from_dict(data, str(path))
+
+
+def building_edges(world: World) -> list[dict]:
+    """Every wall of every building: dicts with building id, edge index, endpoints (2,)+(2,), labels.
+
+    Rings are walked counter-clockwise for exteriors and clockwise for holes, so the outward normal of
+    every wall is on its right-hand side.
+    """
+    from shapely.geometry import Polygon
+    from shapely.geometry.polygon import orient
+
+    edges = []
+    for b_index, b in enumerate(world.buildings):
+        bid = b.id or f"building{b_index}"
+        poly = orient(Polygon(_open_ring(b.footprint), [_open_ring(h) for h in b.holes]), sign=1.0)
+        rings = [np.asarray(poly.exterior.coords)[:-1]] + [np.asarray(r.coords)[:-1] for r in poly.interiors]
+        ext_raw = _open_ring(b.footprint)
+        for r_index, ring in enumerate(rings):
+            for k in range(len(ring)):
+                p, q = ring[k], ring[(k + 1) % len(ring)]
+                label_p = label_q = ""
+                if r_index == 0 and b.vertex_labels:
+                    lookup = {tuple(map(float, v)): lab for v, lab in zip(ext_raw, b.vertex_labels)}
+                    label_p = lookup.get(tuple(map(float, p)), "")
+                    label_q = lookup.get(tuple(map(float, q)), "")
+                edges.append({"building": bid, "ring": r_index, "edge": k, "height": b.height,
+                              "p": p.astype(float), "q": q.astype(float), "label_p": label_p, "label_q": label_q})
+    return edges
