@@ -1,0 +1,118 @@
+import hashlib
+
+import numpy as np
+import pytest
+
+from featmap.io.kitti_raw import read_velo_bin
+from featmap.simulation.sensors import SENSORS
+from featmap.simulation.simulate import simulate_drive
+from featmap.simulation.worlds import load_world, world_from_dict
+
+WALL_Y = 12.0
+WALL_H = 8.0
+
+
+def _single_wall_world():
+    # A 200 m long, 1 m deep building whose south face is the wall y = WALL_Y; the vehicle drives east along y = 0.
+    return world_from_dict({
+        "name": "wall", "route": {"waypoints": [[0, 0], [40, 0]], "speed_mps": 8, "turn_radius_m": 0},
+        "objects": [{"id": "W", "kind": "building", "height": WALL_H,
+                     "footprint": [[-100, WALL_Y], [100, WALL_Y], [100, WALL_Y + 1], [-100, WALL_Y + 1]]}],
+    }, "wall.yaml")
+
+
+@pytest.fixture(scope="module")
+def wall_drive(tmp_path_factory):
+    root = tmp_path_factory.mktemp("wall")
+    return simulate_drive(_single_wall_world(), root, SENSORS["hdl64"], n_frames=2, noise_m=0.02, seed=1)
+
+
+def _world_points(drive, k):
+    import pykitti
+
+    data = pykitti.raw(str(drive.root), drive.date, drive.drive_id)
+    pts = data.get_velo(k)[:, :3]
+    T_w_velo = data.oxts[k].T_w_imu @ np.linalg.inv(data.calib.T_velo_imu)
+    return pts, (T_w_velo[:3, :3] @ pts.T).T + T_w_velo[:3, 3]
+
+
+def test_wall_returns_lie_within_three_sigma_of_the_plane(wall_drive):
+    _, world = _world_points(wall_drive, 0)
+    # local frame: origin at the first IMU position, which is at world (0, 0), so the wall is y = WALL_Y
+    on_wall = (np.abs(world[:, 1] - WALL_Y) < 0.5) & (world[:, 2] > -0.5)
+    assert on_wall.sum() > 1000
+    residual = world[on_wall, 1] - WALL_Y
+    # Gaussian range noise along the ray: 99.7% within 3 sigma of the plane (more, at oblique incidence)
+    assert np.mean(np.abs(residual) <= 3 * 0.02) > 0.997
+    assert np.all(np.abs(residual) < 6 * 0.02)
+    assert abs(residual.mean()) < 0.005
+    assert 0.015 < residual.std() < 0.025
+
+
+def test_elevation_pattern_and_count_match_the_preset(wall_drive):
+    sensor = SENSORS["hdl64"]
+    pts = read_velo_bin(wall_drive.drive_dir / "velodyne_points" / "data" / "0000000000.bin")
+    elev = np.degrees(np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1])))
+    preset = np.asarray(sensor.elevations_deg)
+    # every return was fired by one of the 64 beams (range noise moves points along the ray only)
+    assert np.abs(elev[:, None] - preset[None, :]).min(axis=1).max() < 1e-3
+    # looking straight at the wall (azimuth 90 deg, velodyne y axis), the beams that hit it are those whose
+    # ray meets the plane between the ground and the top of the wall
+    az = np.degrees(np.arctan2(pts[:, 1], pts[:, 0]))
+    ahead = (np.abs(az - 90) < 0.5 * sensor.azimuth_step_deg + 1e-6) & (pts[:, 1] > WALL_Y - 1)
+    hit_height = sensor.height_m + (WALL_Y + 0.32) * np.tan(np.deg2rad(preset))   # velodyne sits 0.32 m left of the IMU
+    expected = (hit_height > 0.3) & (hit_height < WALL_H - 0.3)
+    borderline = (np.abs(hit_height) < 0.3) | (np.abs(hit_height - WALL_H) < 0.3)
+    got = np.zeros(len(preset), bool)
+    got[np.abs(elev[ahead][:, None] - preset[None, :]).argmin(axis=1)] = True
+    assert np.array_equal(got[~borderline], expected[~borderline])
+    n_azimuths = round(360 / sensor.azimuth_step_deg)
+    assert len(pts) <= sensor.n_beams * n_azimuths
+
+
+def test_pykitti_poses_put_returns_on_the_true_walls(tmp_path):
+    world = load_world("prescan_case1")
+    drive = simulate_drive(world, tmp_path, SENSORS["vlp32"], n_frames=6, noise_m=0.02, seed=3)
+    import csv
+
+    walls = list(csv.DictReader(open(drive.drive_dir / "truth" / "walls.csv")))
+    segs = np.array([[float(w[c]) for c in ("x1", "y1", "x2", "y2")] for w in walls])
+    from featmap.geometry import point_segment_distance
+
+    dists = []
+    for k in (0, 5):
+        _, pts = _world_points(drive, k)
+        high = pts[pts[:, 2] > -0.3]       # above the ground (local z = 0 is the IMU, 0.93 m above ground)
+        d = np.min([point_segment_distance(high[:, :2], np.repeat(s[None], len(high), 0)) for s in segs], axis=0)
+        dists.append(d[d < 0.5])
+    dists = np.concatenate(dists)
+    assert len(dists) > 1000
+    assert dists.mean() < 0.05
+
+
+def _digest(root):
+    h = {}
+    for p in sorted(root.rglob("*")):
+        if p.is_file():
+            h[str(p.relative_to(root))] = hashlib.sha256(p.read_bytes()).hexdigest()
+    return h
+
+
+def test_same_seed_gives_byte_identical_files(tmp_path):
+    world = load_world("prescan_case1")
+    a = simulate_drive(world, tmp_path / "a", SENSORS["vlp32"], n_frames=3, pose_noise=(0.1, 0.2), seed=5)
+    b = simulate_drive(world, tmp_path / "b", SENSORS["vlp32"], n_frames=3, pose_noise=(0.1, 0.2), seed=5)
+    c = simulate_drive(world, tmp_path / "c", SENSORS["vlp32"], n_frames=3, pose_noise=(0.1, 0.2), seed=6)
+    da, db, dc = _digest(a.root), _digest(b.root), _digest(c.root)
+    assert da == db and len(da) > 10
+    assert da != dc
+
+
+def test_truth_records_what_the_drive_observed(wall_drive):
+    import csv
+
+    rows = list(csv.DictReader(open(wall_drive.drive_dir / "truth" / "walls.csv")))
+    south = [r for r in rows if abs(float(r["y1"]) - WALL_Y) < 1e-6 and abs(float(r["y2"]) - WALL_Y) < 1e-6][0]
+    north = [r for r in rows if abs(float(r["y1"]) - WALL_Y - 1) < 1e-6 and abs(float(r["y2"]) - WALL_Y - 1) < 1e-6][0]
+    assert int(south["n_returns"]) > 1000 and float(south["observed_m"]) > 20
+    assert int(north["n_returns"]) == 0 and float(north["observed_m"]) == 0

@@ -1,0 +1,57 @@
+import json
+
+import pytest
+
+from featmap.errors import WorldError
+from featmap.simulation.worlds import builtin_worlds, building_edges, load_world
+
+BASE = "name: t\nroute: {waypoints: [[0, 0], [10, 0]]}\nobjects:\n"
+
+
+@pytest.mark.parametrize("obj,match", [
+    ("  - {id: bow, kind: building, footprint: [[0, 0], [10, 10], [10, 0], [0, 10]]}",
+     r"w.yaml: object 'bow' \(building\): invalid footprint \(Self-intersection"),
+    ("  - {id: low, kind: building, footprint: [[0, 0], [10, 0], [10, 10]], height: -3}",
+     r"w.yaml: object 'low' \(building\): 'height' input should be greater than 0"),
+    ("  - {id: ufo, kind: spaceship, position: [1, 2]}",
+     r"w.yaml: object 'ufo' \('?spaceship'?\): unknown kind 'spaceship'; allowed: building, fence, car, pole, tree"),
+    ("  - {kind: car}", r"w.yaml: object #0 \(car\): 'position' field required"),
+])
+def test_bad_world_files_name_the_file_and_the_object(tmp_path, obj, match):
+    path = tmp_path / "w.yaml"
+    path.write_text(BASE + obj + "\n")
+    with pytest.raises(WorldError, match=match) as info:
+        load_world(path)
+    assert "\n" not in str(info.value)
+
+
+def test_builtin_worlds_load_and_label_vertices():
+    assert {"residential", "prescan_case1", "prescan_case2"} <= set(builtin_worlds())
+    case1 = load_world("prescan_case1")
+    edges = building_edges(case1)
+    assert [(e["label_p"], e["label_q"]) for e in edges] == [("a", "b"), ("b", "c"), ("c", "d"), ("d", "a")]
+    res = load_world("residential")
+    assert len(res.buildings) > 30 and res.of_kind("fence") and res.of_kind("car")
+
+
+def test_geojson_world_like_an_openstreetmap_export(tmp_path):
+    lat, lon = 49.0, 8.4
+    d = 1e-4
+    fc = {"type": "FeatureCollection", "features": [
+        {"type": "Feature", "properties": {"kind": "route"},
+         "geometry": {"type": "LineString", "coordinates": [[lon, lat], [lon + 4 * d, lat]]}},
+        {"type": "Feature", "properties": {"building": "yes", "building:levels": 3},
+         "geometry": {"type": "Polygon", "coordinates": [[[lon, lat + d], [lon + d, lat + d], [lon + d, lat + 2 * d],
+                                                          [lon, lat + 2 * d], [lon, lat + d]]]}},
+    ]}
+    path = tmp_path / "osm.geojson"
+    path.write_text(json.dumps(fc))
+    world = load_world(path)
+    assert len(world.buildings) == 1 and world.buildings[0].height == 9.0
+    xs = [p[0] for p in world.buildings[0].footprint]
+    assert max(xs) - min(xs) == pytest.approx(d * 3.14159265 / 180 * 6378137 * 0.656, rel=0.01)
+
+
+def test_unknown_world_name_lists_builtins():
+    with pytest.raises(WorldError, match="built-in worlds: .*residential"):
+        load_world("atlantis")
