@@ -71,6 +71,58 @@ def fuse(
     fuse_and_write(table, methods, cfg, out)
 
 
+DEFAULT_WORLD = "residential"
+DEFAULT_SIM_ROOT = Path("data/sim")
+
+
+def ensure_default_drive(sim_root: Path = DEFAULT_SIM_ROOT, world_name: str = DEFAULT_WORLD) -> tuple[Path, str]:
+    """The embedded default drive: simulate ``world_name`` on first use (with a progress bar), then reuse it."""
+    from featmap.progress import track
+    from featmap.simulation.sensors import SENSORS
+    from featmap.simulation.simulate import SIM_DATE, simulate_drive
+    from featmap.simulation.worlds import load_world
+
+    data_dir = sim_root / world_name
+    drive = f"{SIM_DATE}_drive_0001"
+    if not (data_dir / SIM_DATE / f"{drive}_sync" / "truth" / "simulation.json").exists():
+        typer.echo(f"first run: simulating the default drive ({world_name}) into {data_dir} (reused afterwards)")
+        world = load_world(world_name)
+        simulate_drive(world, data_dir, SENSORS["hdl64"], progress=lambda it, n: track(it, n, f"simulating {world_name}"))
+    return data_dir, drive
+
+
+@command
+def run(
+    drive: Optional[str] = typer.Option(None, "--drive", "-d", help="KITTI raw drive YYYY_MM_DD_drive_NNNN (default: the embedded simulated drive)."),
+    data_dir: Path = typer.Option(Path("data/kitti"), "--data-dir", help="KITTI raw root holding YYYY_MM_DD/ folders."),
+    frames: Optional[str] = typer.Option(None, "--frames", help="start:stop:step selection of frames."),
+    method: str = MethodOpt,
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Run folder (default: runs/<drive>)."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+    workers: int = typer.Option(2, "--workers", "-j", min=1, help="Extraction processes."),
+    cache_dir: Path = typer.Option(Path("data/cache"), "--cache-dir", help="Per-drive cache of extracted segments."),
+    skip_bad_scans: bool = typer.Option(False, "--skip-bad-scans", help="Skip unreadable scans instead of failing."),
+):
+    """Turn a LiDAR drive into fused wall maps (the embedded simulated drive when --drive is not given)."""
+    from featmap.config import load_config
+    from featmap.datasets import KittiRawDataset, parse_frames
+    from featmap.fusion.registry import resolve_methods
+    from featmap.pipeline import MappingPipeline
+
+    cfg = load_config(config, set_ or [])
+    methods = resolve_methods(method)
+    selection = parse_frames(frames)
+    if drive is None:
+        data_dir, drive = ensure_default_drive()
+        default_out = Path("runs") / DEFAULT_WORLD
+    else:
+        default_out = Path("runs") / drive
+    dataset = KittiRawDataset(data_dir, drive, selection, skip_bad_scans=skip_bad_scans)
+    MappingPipeline(dataset, cfg, out or default_out, methods, workers=workers, cache_dir=cache_dir,
+                    skip_bad_scans=skip_bad_scans).run()
+
+
 def _parse_pose_noise(text: str) -> tuple[float, float]:
     try:
         pos, yaw = (float(v) for v in text.split(","))

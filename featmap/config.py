@@ -34,6 +34,7 @@ class ExtractionConfig(_Section):
     ground_margin_m: float = Field(0.3, ge=0, description="also drop points this close above the ground plane")
     plane_threshold_m: float = Field(0.08, gt=0, description="RANSAC inlier distance of a wall plane")
     ransac_iterations: int = Field(300, ge=10, description="RANSAC iterations per plane")
+    ransac_max_points: int = Field(2000, ge=100, description="RANSAC hypotheses come from a random subset of this many points")
     max_planes: int = Field(25, ge=1, description="planes tried per scan")
     max_normal_tilt_deg: float = Field(10.0, ge=0, le=90, description="a wall's normal lies within this of horizontal")
     min_plane_inliers: int = Field(60, ge=3, description="stop when the best plane has fewer inliers")

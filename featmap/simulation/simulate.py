@@ -182,6 +182,7 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
     oxts_dir = drive_tmp / "oxts" / "data"
     velo_dir.mkdir(parents=True)
     oxts_dir.mkdir(parents=True)
+    per_frame: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []     # (frame, bin, count) per scan
     frames = range(n) if progress is None else progress(range(n), n)
     yaw_rate = np.gradient(np.unwrap(yaw), dt_s)
     speed = world.route.speed_mps
@@ -212,7 +213,9 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
             e = index.wall_edge_of_triangle[prim[wall]]
             s = np.einsum("ij,ij->i", hit_w[:, :2] - edge_p[e], edge_u[e])
             b = np.clip((s / COVERAGE_BIN_M).astype(np.int64), 0, n_bins[e] - 1)
-            coverage += np.bincount(bin_offset[e] + b, minlength=len(coverage))
+            bins, counts = np.unique(bin_offset[e] + b, return_counts=True)
+            coverage[bins] += counts
+            per_frame.append((np.full(len(bins), k, np.int32), bins.astype(np.int32), counts.astype(np.int32)))
 
         # OXTS: the (possibly perturbed) IMU pose of this frame.
         noisy_x, noisy_y, noisy_yaw = xy[k, 0] + err_x[k], xy[k, 1] + err_y[k], yaw[k] + err_yaw[k]
@@ -231,6 +234,7 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
         write_timestamps(drive_tmp / sub / "timestamps.txt", seconds, start)
     (drive_tmp / "oxts" / "dataformat.txt").write_text(_OXTS_DATAFORMAT)
     write_calibration(calib_dir, T_velo_imu)
+    _write_coverage(drive_tmp / "truth" / "coverage.npz", per_frame, bin_offset)
     _write_truth(drive_tmp / "truth", world, edges, coverage, bin_offset, n_bins, p0, geo, xy, yaw,
                  err_x, err_y, err_yaw, {
                      "world": world.name, "world_source": world.source, "sensor": sensor.name,
@@ -240,6 +244,15 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
                  })
     os.replace(drive_tmp, final_dir)
     return SimulatedDrive(out_root, SIM_DATE, drive_id, n)
+
+
+def _write_coverage(path: Path, per_frame, bin_offset: np.ndarray) -> None:
+    """Which wall bins each frame saw (for scoring a selection of frames): frame, bin, count + bin_offset."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cat = (lambda i: np.concatenate([p[i] for p in per_frame]) if per_frame else np.zeros(0, np.int32))
+    with open(path, "wb") as fh:
+        np.savez_compressed(fh, frame=cat(0), bin=cat(1), count=cat(2), bin_offset=bin_offset.astype(np.int64),
+                            bin_m=np.float64(COVERAGE_BIN_M), min_bin_returns=np.int64(MIN_BIN_RETURNS))
 
 
 def observed_intervals(counts: np.ndarray, min_returns: int = MIN_BIN_RETURNS, bin_m: float = COVERAGE_BIN_M,

@@ -1,0 +1,200 @@
+"""KITTI raw drives (real or simulated) through pykitti, checked before pykitti can fail late.
+
+``KittiRawDataset(data_dir, "2011_09_30_drive_0018", frames=slice(0, 100, 2))`` validates the layout
+(drive folder, the three calibration files, scan and OXTS counts, ``.bin`` sizes, every OXTS packet)
+with one-line :class:`DatasetError` messages naming the file, then hands poses and calibration to
+pykitti. Poses are pykitti's: ``T_w_velo = T_w_imu @ inv(T_velo_imu)``, world = the local metric
+frame whose origin is the drive's first OXTS packet (always the first frame of the *drive*, so a
+frame selection does not move the map).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from featmap.datasets.base import ScanItem
+from featmap.errors import DatasetError
+from featmap.geo import GeoFrame
+from featmap.io.kitti_raw import (CALIB_FILES, drive_paths, read_calib_file, read_oxts_packet, read_rigid_calib,
+                                  read_timestamps, read_velo_bin)
+
+KITTI_RAW_URL = "https://www.cvlibs.net/datasets/kitti/raw_data.php"
+DRIVE_RE = re.compile(r"^(\d{4}_\d{2}_\d{2})_drive_(\d{4})(?:_sync)?$")
+
+# An OXTS packet is flagged as poor GPS when any of these holds (KITTI's OXTS RT3003 conventions).
+POOR_NAVSTAT = 4          # navstat below 4: not in full navigation mode
+POOR_NUMSATS = 4          # fewer satellites than this
+POOR_POS_ACCURACY_M = 0.5
+
+
+def parse_drive(drive: str) -> tuple[str, str]:
+    """``"2011_09_30_drive_0018"`` -> ``("2011_09_30", "0018")``."""
+    match = DRIVE_RE.match(drive.strip())
+    if not match:
+        raise DatasetError(f"--drive {drive!r}: expected YYYY_MM_DD_drive_NNNN, e.g. 2011_09_30_drive_0018")
+    return match.group(1), match.group(2)
+
+
+def parse_frames(text: str | None) -> slice | None:
+    """``"start:stop:step"`` (each part optional) -> slice; None for all frames."""
+    if text is None or text.strip() in ("", ":"):
+        return None
+    parts = text.split(":")
+    if len(parts) > 3:
+        raise DatasetError(f"--frames {text!r}: expected start:stop:step")
+    try:
+        values = [int(p) if p.strip() else None for p in parts]
+    except ValueError:
+        raise DatasetError(f"--frames {text!r}: expected integers, e.g. 0:200:2") from None
+    if len(values) == 1:
+        return slice(values[0], values[0] + 1)
+    if len(values) == 3 and values[2] is not None and values[2] <= 0:
+        raise DatasetError(f"--frames {text!r}: step must be positive")
+    return slice(*values)
+
+
+@dataclass(frozen=True)
+class DriveCheck:
+    """What validating a drive found."""
+
+    n_frames: int
+    bad_scans: dict[int, str] = field(default_factory=dict)     # frame -> reason
+    bad_oxts: dict[int, str] = field(default_factory=dict)
+    poor_gps: list[int] = field(default_factory=list)
+
+
+class KittiRawDataset:
+    """A KITTI raw drive as a sequence of :class:`ScanItem` (``len(ds)``, ``ds[i]``).
+
+    Args:
+        data_dir: KITTI raw root (contains ``YYYY_MM_DD/``).
+        drive: ``YYYY_MM_DD_drive_NNNN``.
+        frames: a slice of the drive's frames (default: all).
+        skip_bad_scans: leave out frames whose scan or OXTS packet is unreadable (reported in
+            ``skipped``) instead of failing.
+    """
+
+    name = "kitti_raw"
+
+    def __init__(self, data_dir: str | Path, drive: str, frames: slice | None = None, skip_bad_scans: bool = False):
+        import pykitti
+
+        self._spec = {"data_dir": str(data_dir), "drive": drive, "frames": frames, "skip_bad_scans": skip_bad_scans}
+        self.data_dir = Path(data_dir)
+        self.drive = drive
+        self.date, self.drive_id = parse_drive(drive)
+        self.calib_dir, self.drive_dir = drive_paths(self.data_dir, self.date, self.drive_id)
+        self.skip_bad_scans = skip_bad_scans
+        check = self._check_layout()
+        bad = set(check.bad_oxts) | set(check.bad_scans)
+        if bad and not skip_bad_scans:
+            frame = min(bad)
+            raise DatasetError(check.bad_oxts.get(frame) or check.bad_scans[frame])
+        good = [k for k in range(check.n_frames) if k not in bad]
+        if not good:
+            raise DatasetError(f"{self.drive_dir}: no readable frame")
+        self.skipped = {k: check.bad_oxts.get(k) or check.bad_scans[k] for k in sorted(bad)}
+        self.poor_gps = [k for k in check.poor_gps if k not in bad]
+        try:
+            self._raw = pykitti.raw(str(self.data_dir), self.date, self.drive_id,
+                                    frames=good if bad else None)
+        except Exception as exc:  # pykitti's own failures, after our checks: name the drive
+            raise DatasetError(f"{self.drive_dir}: pykitti could not load the drive ({type(exc).__name__}: {exc})") from None
+        self._good_frames = good
+        selected = good if frames is None else [k for k in range(check.n_frames)[frames] if k not in bad]
+        if not selected:
+            raise DatasetError(f"--frames selects no frame of {drive} ({check.n_frames} frames)")
+        self._position = {frame: i for i, frame in enumerate(good)}
+        self.frames = selected
+        self.T_velo_imu = np.asarray(self._raw.calib.T_velo_imu)
+        self._T_imu_velo = np.linalg.inv(self.T_velo_imu)
+        self._stamps = read_timestamps(self.drive_dir / "velodyne_points" / "timestamps.txt") \
+            if (self.drive_dir / "velodyne_points" / "timestamps.txt").exists() else None
+        first = self._raw.oxts[0].packet
+        self.geo_frame = GeoFrame(float(first.lat), float(first.lon), float(first.alt))
+
+    # -- validation -----------------------------------------------------------------------------------
+    def _check_layout(self) -> DriveCheck:
+        if not self.drive_dir.is_dir():
+            raise DatasetError(
+                f"drive {self.drive} not found: looked for {self.drive_dir}; get it with "
+                f"`featmap download --drive {self.drive} --data-dir {self.data_dir}` or from {KITTI_RAW_URL}")
+        for name in CALIB_FILES:
+            path = self.calib_dir / name
+            if not path.is_file():
+                raise DatasetError(f"{path}: calibration file missing (it comes with {self.date}_calib.zip)")
+        read_rigid_calib(self.calib_dir / "calib_imu_to_velo.txt")
+        read_rigid_calib(self.calib_dir / "calib_velo_to_cam.txt")
+        cam = read_calib_file(self.calib_dir / "calib_cam_to_cam.txt")
+        for key, size in [("R_rect_00", 9)] + [(f"P_rect_0{k}", 12) for k in range(4)]:
+            if key not in cam or cam[key].size != size:
+                raise DatasetError(f"{self.calib_dir / 'calib_cam_to_cam.txt'}: '{key}' missing or not {size} numbers")
+        velo_dir = self.drive_dir / "velodyne_points" / "data"
+        oxts_dir = self.drive_dir / "oxts" / "data"
+        for folder in (velo_dir, oxts_dir):
+            if not folder.is_dir():
+                raise DatasetError(f"{folder}: folder missing from the drive")
+        scans = sorted(velo_dir.glob("*.bin"))
+        packets = sorted(oxts_dir.glob("*.txt"))
+        if not scans:
+            raise DatasetError(f"{velo_dir}: no .bin scan files")
+        if len(scans) != len(packets):
+            raise DatasetError(f"{self.drive_dir}: {len(scans)} scans in velodyne_points/data but {len(packets)} "
+                               "OXTS packets in oxts/data; the drive is incomplete (re-download or unzip again)")
+        for k, (s, o) in enumerate(zip(scans, packets)):
+            if int(s.stem) != k or int(o.stem) != k:
+                raise DatasetError(f"{s if int(s.stem) != k else o}: expected frame {k:010d} (files must be numbered 0..N-1)")
+        stamps = self.drive_dir / "oxts" / "timestamps.txt"
+        if not stamps.is_file():
+            raise DatasetError(f"{stamps}: timestamps file missing")
+        n_stamps = len(read_timestamps(stamps))
+        if n_stamps != len(packets):
+            raise DatasetError(f"{stamps}: {n_stamps} timestamps for {len(packets)} OXTS packets")
+        bad_scans, bad_oxts, poor = {}, {}, []
+        for k, s in enumerate(scans):
+            size = s.stat().st_size
+            if size == 0:
+                bad_scans[k] = f"{s}: empty scan (0 points)"
+            elif size % 16:
+                bad_scans[k] = f"{s}: truncated scan ({size} bytes is not a multiple of 16 = 4 float32 per point)"
+        for k, o in enumerate(packets):
+            try:
+                p = read_oxts_packet(o)
+            except DatasetError as exc:
+                bad_oxts[k] = str(exc)
+                continue
+            if p["navstat"] < POOR_NAVSTAT or p["numsats"] < POOR_NUMSATS or p["pos_accuracy"] > POOR_POS_ACCURACY_M:
+                poor.append(k)
+        return DriveCheck(len(scans), bad_scans, bad_oxts, poor)
+
+    def spec(self) -> dict:
+        """Constructor arguments (to rebuild the dataset in a worker process)."""
+        return dict(self._spec)
+
+    # -- sequence -------------------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, i: int) -> ScanItem:
+        if not -len(self) <= i < len(self):
+            raise IndexError(i)
+        frame = self.frames[i]
+        pos = self._position[frame]
+        points = read_velo_bin(self._raw.velo_files[pos])
+        T_w_velo = np.asarray(self._raw.oxts[pos].T_w_imu) @ self._T_imu_velo
+        stamp = float(self._stamps[frame]) if self._stamps is not None and frame < len(self._stamps) else 0.1 * frame
+        return ScanItem(frame=frame, points=points, T_w_velo=T_w_velo, timestamp=stamp)
+
+    def poses(self) -> np.ndarray:
+        """(F, 4, 4) ``T_w_velo`` of the selected frames (no scan is read)."""
+        return np.stack([np.asarray(self._raw.oxts[self._position[f]].T_w_imu) @ self._T_imu_velo for f in self.frames])
+
+    @property
+    def truth_dir(self) -> Path | None:
+        """The simulator's ground truth for this drive, when there is one."""
+        path = self.drive_dir / "truth"
+        return path if (path / "walls.csv").is_file() else None

@@ -1,0 +1,188 @@
+"""Vertical planes of one LiDAR scan -> 2D ground segments.
+
+1. Crop by range and height (velodyne frame).
+2. Voxel down-sampling (Open3D).
+3. Ground removal: RANSAC plane on the low points; if it is near-horizontal, drop every point less
+   than ``ground_margin_m`` above it.
+4. Repeated Open3D ``segment_plane`` on what is left (on a random subset of at most
+   ``ransac_max_points`` points, for speed; the plane's inliers are then taken from all points). A
+   plane whose normal is within
+   ``max_normal_tilt_deg`` of horizontal is a wall candidate; other planes (car roofs, leftover
+   ground) are removed and the search goes on.
+5. The inliers of one wall plane are split into pieces wherever they leave a gap longer than
+   ``max_gap_m`` along the wall (one RANSAC plane often spans several separate walls in a row).
+6. Each piece with enough points, length and height becomes a segment: a total-least-squares line
+   through its points' (x, y), cut at their extreme projections.
+
+Everything is seeded (``seed``), so the same scan gives the same segments.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from featmap.config import ExtractionConfig
+from featmap.geometry import fit_line_tls
+
+
+@dataclass(frozen=True)
+class ScanSegments:
+    """Wall segments of one scan, in the velodyne frame.
+
+    Attributes:
+        segments: (K, 4) ``x1, y1, x2, y2`` in metres (velodyne frame, projected to its x-y plane).
+        z_mean: (K,) mean height of each piece's points (velodyne frame): where to lift the endpoints
+            before moving them to the world frame.
+        n_points: (K,) points in each piece (after down-sampling).
+        z_min, z_max: (K,) vertical extent of each piece (velodyne frame).
+        rms: (K,) root-mean-square distance of the piece's points to its fitted line (metres).
+    """
+
+    segments: np.ndarray
+    z_mean: np.ndarray
+    n_points: np.ndarray
+    z_min: np.ndarray
+    z_max: np.ndarray
+    rms: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.segments)
+
+    @staticmethod
+    def empty() -> "ScanSegments":
+        z = np.zeros(0)
+        return ScanSegments(np.zeros((0, 4)), z, np.zeros(0, np.int64), z, z, z)
+
+
+def crop(points: np.ndarray, config: ExtractionConfig) -> np.ndarray:
+    """Keep (N, >=3) points within the range and height limits; returns (M, 3)."""
+    xyz = np.asarray(points, dtype=np.float64)[:, :3]
+    r = np.hypot(xyz[:, 0], xyz[:, 1])
+    keep = (r >= config.min_range_m) & (r <= config.max_range_m)
+    keep &= (xyz[:, 2] >= config.z_min_m) & (xyz[:, 2] <= config.z_max_m)
+    return xyz[keep]
+
+
+def _ransac_plane(xyz: np.ndarray, threshold: float, iterations: int, max_points: int | None = None,
+                  rng: np.random.Generator | None = None):
+    """Open3D RANSAC plane: returns (unit normal (3,), offset d, inlier indices into ``xyz``).
+
+    With ``max_points``, the hypotheses are searched on a random subset of that size and the inliers
+    are then every point of ``xyz`` within ``threshold`` of the plane.
+    """
+    import open3d as o3d
+
+    sample = xyz
+    if max_points is not None and len(xyz) > max_points:
+        rng = rng or np.random.default_rng(0)
+        sample = xyz[np.sort(rng.choice(len(xyz), max_points, replace=False))]
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(sample))
+    model, inliers = cloud.segment_plane(distance_threshold=threshold, ransac_n=3, num_iterations=iterations)
+    normal = np.asarray(model[:3], float)
+    norm = np.linalg.norm(normal)
+    if norm == 0 or len(inliers) < 3:
+        return np.array([0.0, 0.0, 1.0]), 0.0, np.zeros(0, np.int64)
+    normal, d = normal / norm, float(model[3]) / norm
+    if sample is xyz:
+        return normal, d, np.asarray(inliers, dtype=np.int64)
+    return normal, d, np.flatnonzero(np.abs(xyz @ normal + d) <= threshold)
+
+
+def remove_ground(xyz: np.ndarray, config: ExtractionConfig) -> np.ndarray:
+    """Drop the ground: a near-horizontal RANSAC plane fitted to the lowest points, plus a margin above it."""
+    if len(xyz) < 10:
+        return xyz
+    low = xyz[:, 2] < np.percentile(xyz[:, 2], 30) + 0.5
+    candidates = xyz[low]
+    if len(candidates) >= 10:
+        normal, d, inliers = _ransac_plane(candidates, config.ground_threshold_m, config.ransac_iterations,
+                                           config.ransac_max_points, np.random.default_rng(config.seed))
+        if len(inliers) >= 10 and abs(normal[2]) > np.cos(np.deg2rad(15.0)):
+            if normal[2] < 0:
+                normal, d = -normal, -d
+            height = xyz @ normal + d
+            return xyz[height > config.ground_margin_m]
+    # No clear ground plane (e.g. a scan full of walls): fall back to a height threshold.
+    return xyz[xyz[:, 2] > np.percentile(xyz[:, 2], 5) + config.ground_margin_m]
+
+
+def split_pieces(t: np.ndarray, max_gap: float) -> list[np.ndarray]:
+    """Indices of runs of sorted positions ``t`` (K,) separated by gaps longer than ``max_gap``."""
+    order = np.argsort(t, kind="stable")
+    gaps = np.flatnonzero(np.diff(t[order]) > max_gap)
+    return np.split(order, gaps + 1)
+
+
+def extract_segments(points: np.ndarray, config: ExtractionConfig = ExtractionConfig()) -> ScanSegments:
+    """Wall segments of one scan.
+
+    Args:
+        points: (N, 3) or (N, 4) velodyne-frame points (x forward, y left, z up; metres).
+        config: extraction parameters.
+    Returns:
+        ScanSegments in the velodyne frame (possibly empty).
+    """
+    import open3d as o3d
+
+    o3d.utility.random.seed(int(config.seed))
+    xyz = crop(points, config)
+    if config.voxel_size_m > 0 and len(xyz):
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz))
+        xyz = np.asarray(cloud.voxel_down_sample(config.voxel_size_m).points)
+    xyz = remove_ground(xyz, config)
+    max_nz = np.sin(np.deg2rad(config.max_normal_tilt_deg))
+    rows = []
+    remaining = xyz
+    rng = np.random.default_rng(config.seed)
+    for _ in range(config.max_planes):
+        if len(remaining) < config.min_plane_inliers:
+            break
+        normal, _, inliers = _ransac_plane(remaining, config.plane_threshold_m, config.ransac_iterations,
+                                           config.ransac_max_points, rng)
+        if len(inliers) < config.min_plane_inliers:
+            break
+        plane_pts = remaining[inliers]
+        mask = np.ones(len(remaining), bool)
+        mask[inliers] = False
+        remaining = remaining[mask]
+        if abs(normal[2]) > max_nz:
+            continue                                          # not a wall: car roof, ramp, leftover ground
+        horizontal = np.array([-normal[1], normal[0]])
+        horizontal /= np.linalg.norm(horizontal)
+        for piece in split_pieces(plane_pts[:, :2] @ horizontal, config.max_gap_m):
+            if len(piece) < config.min_segment_points:
+                continue
+            pts = plane_pts[piece]
+            z_lo, z_hi = pts[:, 2].min(), pts[:, 2].max()
+            if z_hi - z_lo < config.min_vertical_extent_m:
+                continue
+            centroid, direction = fit_line_tls(pts[:, :2])
+            t = (pts[:, :2] - centroid) @ direction
+            if t.max() - t.min() < config.min_segment_length_m:
+                continue
+            normal2d = np.array([-direction[1], direction[0]])
+            rms = float(np.sqrt(np.mean(((pts[:, :2] - centroid) @ normal2d) ** 2)))
+            p1, p2 = centroid + t.min() * direction, centroid + t.max() * direction
+            rows.append((p1[0], p1[1], p2[0], p2[1], pts[:, 2].mean(), len(pts), z_lo, z_hi, rms))
+    if not rows:
+        return ScanSegments.empty()
+    arr = np.asarray(rows, float)
+    return ScanSegments(segments=arr[:, :4], z_mean=arr[:, 4], n_points=arr[:, 5].astype(np.int64),
+                        z_min=arr[:, 6], z_max=arr[:, 7], rms=arr[:, 8])
+
+
+def segments_to_world(scan_segments: ScanSegments, T_w_velo: np.ndarray) -> np.ndarray:
+    """Move a scan's segments to the world frame.
+
+    Each endpoint is lifted to its piece's mean height, transformed by ``T_w_velo`` (4, 4) and
+    projected to the world's x-y plane. Returns (K, 4) world-frame ``x1, y1, x2, y2``.
+    """
+    seg = scan_segments.segments
+    if len(seg) == 0:
+        return np.zeros((0, 4))
+    R, t = T_w_velo[:3, :3], T_w_velo[:3, 3]
+    p1 = np.column_stack([seg[:, 0], seg[:, 1], scan_segments.z_mean]) @ R.T + t
+    p2 = np.column_stack([seg[:, 2], seg[:, 3], scan_segments.z_mean]) @ R.T + t
+    return np.column_stack([p1[:, :2], p2[:, :2]])
