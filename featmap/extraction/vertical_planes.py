@@ -3,7 +3,9 @@
 1. Crop by range and height (velodyne frame).
 2. Voxel down-sampling (Open3D).
 3. Ground removal: RANSAC plane on the low points; if it is near-horizontal, drop every point less
-   than ``ground_margin_m`` above it.
+   than ``ground_margin_m`` above it. The plane also gives each wall piece its height above ground:
+   pieces whose top stays below ``min_top_height_m`` (fences, low walls, parked cars: the paper's
+   "trivial features") are not walls of buildings.
 4. Repeated Open3D ``segment_plane`` on what is left (on a random subset of at most
    ``ransac_max_points`` points, for speed; the plane's inliers are then taken from all points). A
    plane whose normal is within
@@ -90,10 +92,14 @@ def _ransac_plane(xyz: np.ndarray, threshold: float, iterations: int, max_points
     return normal, d, np.flatnonzero(np.abs(xyz @ normal + d) <= threshold)
 
 
-def remove_ground(xyz: np.ndarray, config: ExtractionConfig) -> np.ndarray:
-    """Drop the ground: a near-horizontal RANSAC plane fitted to the lowest points, plus a margin above it."""
+def remove_ground(xyz: np.ndarray, config: ExtractionConfig) -> tuple[np.ndarray, np.ndarray, float]:
+    """Drop the ground: a near-horizontal RANSAC plane fitted to the lowest points, plus a margin above it.
+
+    Returns (remaining points (M, 3), ground unit normal (3,) pointing up, offset d): the height of a
+    point p above the ground is ``p @ normal + d``.
+    """
     if len(xyz) < 10:
-        return xyz
+        return xyz, np.array([0.0, 0.0, 1.0]), -float(xyz[:, 2].min()) if len(xyz) else 0.0
     low = xyz[:, 2] < np.percentile(xyz[:, 2], 30) + 0.5
     candidates = xyz[low]
     if len(candidates) >= 10:
@@ -103,9 +109,10 @@ def remove_ground(xyz: np.ndarray, config: ExtractionConfig) -> np.ndarray:
             if normal[2] < 0:
                 normal, d = -normal, -d
             height = xyz @ normal + d
-            return xyz[height > config.ground_margin_m]
-    # No clear ground plane (e.g. a scan full of walls): fall back to a height threshold.
-    return xyz[xyz[:, 2] > np.percentile(xyz[:, 2], 5) + config.ground_margin_m]
+            return xyz[height > config.ground_margin_m], normal, d
+    # No clear ground plane (e.g. a scan full of walls): the 5th height percentile is the ground.
+    floor = float(np.percentile(xyz[:, 2], 5))
+    return xyz[xyz[:, 2] > floor + config.ground_margin_m], np.array([0.0, 0.0, 1.0]), -floor
 
 
 def split_pieces(t: np.ndarray, max_gap: float) -> list[np.ndarray]:
@@ -115,23 +122,29 @@ def split_pieces(t: np.ndarray, max_gap: float) -> list[np.ndarray]:
     return np.split(order, gaps + 1)
 
 
-def extract_segments(points: np.ndarray, config: ExtractionConfig = ExtractionConfig()) -> ScanSegments:
+def extract_segments(points: np.ndarray, config: ExtractionConfig = ExtractionConfig(),
+                     timings: dict[str, float] | None = None) -> ScanSegments:
     """Wall segments of one scan.
 
     Args:
         points: (N, 3) or (N, 4) velodyne-frame points (x forward, y left, z up; metres).
         config: extraction parameters.
+        timings: if given, seconds spent per stage are added to it (crop, voxel, ground, planes, pieces).
     Returns:
         ScanSegments in the velodyne frame (possibly empty).
     """
     import open3d as o3d
 
+    clock = _StageClock(timings)
     o3d.utility.random.seed(int(config.seed))
     xyz = crop(points, config)
+    clock.lap("crop")
     if config.voxel_size_m > 0 and len(xyz):
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz))
         xyz = np.asarray(cloud.voxel_down_sample(config.voxel_size_m).points)
-    xyz = remove_ground(xyz, config)
+    clock.lap("voxel")
+    xyz, ground_normal, ground_d = remove_ground(xyz, config)
+    clock.lap("ground")
     max_nz = np.sin(np.deg2rad(config.max_normal_tilt_deg))
     rows = []
     remaining = xyz
@@ -141,6 +154,7 @@ def extract_segments(points: np.ndarray, config: ExtractionConfig = ExtractionCo
             break
         normal, _, inliers = _ransac_plane(remaining, config.plane_threshold_m, config.ransac_iterations,
                                            config.ransac_max_points, rng)
+        clock.lap("planes")
         if len(inliers) < config.min_plane_inliers:
             break
         plane_pts = remaining[inliers]
@@ -158,6 +172,8 @@ def extract_segments(points: np.ndarray, config: ExtractionConfig = ExtractionCo
             z_lo, z_hi = pts[:, 2].min(), pts[:, 2].max()
             if z_hi - z_lo < config.min_vertical_extent_m:
                 continue
+            if (pts @ ground_normal + ground_d).max() < config.min_top_height_m:
+                continue                                      # fences, low walls, parked cars
             centroid, direction = fit_line_tls(pts[:, :2])
             t = (pts[:, :2] - centroid) @ direction
             if t.max() - t.min() < config.min_segment_length_m:
@@ -166,11 +182,29 @@ def extract_segments(points: np.ndarray, config: ExtractionConfig = ExtractionCo
             rms = float(np.sqrt(np.mean(((pts[:, :2] - centroid) @ normal2d) ** 2)))
             p1, p2 = centroid + t.min() * direction, centroid + t.max() * direction
             rows.append((p1[0], p1[1], p2[0], p2[1], pts[:, 2].mean(), len(pts), z_lo, z_hi, rms))
+        clock.lap("pieces")
     if not rows:
         return ScanSegments.empty()
     arr = np.asarray(rows, float)
     return ScanSegments(segments=arr[:, :4], z_mean=arr[:, 4], n_points=arr[:, 5].astype(np.int64),
                         z_min=arr[:, 6], z_max=arr[:, 7], rms=arr[:, 8])
+
+
+class _StageClock:
+    """Adds the seconds since the previous lap to ``timings[stage]`` (no-op when timings is None)."""
+
+    def __init__(self, timings: dict[str, float] | None):
+        import time
+
+        self._now = time.perf_counter
+        self.timings = timings
+        self.last = self._now()
+
+    def lap(self, stage: str) -> None:
+        if self.timings is not None:
+            now = self._now()
+            self.timings[stage] = self.timings.get(stage, 0.0) + now - self.last
+            self.last = now
 
 
 def segments_to_world(scan_segments: ScanSegments, T_w_velo: np.ndarray) -> np.ndarray:

@@ -137,14 +137,21 @@ def orientation_embedding(theta: np.ndarray) -> np.ndarray:
 
 def cluster_orientations(theta: np.ndarray, bandwidth_rad: float) -> np.ndarray:
     """Mean-shift clusters of undirected orientations (K,) -> (K,) cluster ids (scikit-learn MeanShift)."""
+    return mean_shift(orientation_embedding(theta), bandwidth_rad)
+
+
+def mean_shift(points: np.ndarray, bandwidth: float) -> np.ndarray:
+    """scikit-learn MeanShift labels of (K, D) points (binned seeds; every point assigned)."""
+    import warnings
+
     from sklearn.cluster import MeanShift
 
-    if len(theta) == 0:
-        return np.zeros(0, np.int64)
-    if len(theta) == 1:
-        return np.zeros(1, np.int64)
-    ms = MeanShift(bandwidth=bandwidth_rad, bin_seeding=True, cluster_all=True)
-    return ms.fit_predict(orientation_embedding(theta)).astype(np.int64)
+    if len(points) < 2:
+        return np.zeros(len(points), np.int64)
+    with warnings.catch_warnings():
+        # "Binning data failed ... using data points as seeds": a harmless fallback for sparse data.
+        warnings.filterwarnings("ignore", message="Binning data failed")
+        return MeanShift(bandwidth=bandwidth, bin_seeding=True, cluster_all=True).fit_predict(points).astype(np.int64)
 
 
 def merge_onto_mean_line(segments: np.ndarray, labels: np.ndarray, n_clusters: int,

@@ -15,15 +15,13 @@ from __future__ import annotations
 import numpy as np
 
 from featmap.config import MeanShiftConfig
-from featmap.fusion.base import (FusionResult, cluster_orientations, finish_clusters, merge_onto_mean_line,
-                                 validate_input)
+from featmap.fusion.base import (FusionResult, cluster_orientations, finish_clusters, mean_shift,
+                                 merge_onto_mean_line, validate_input)
 from featmap.geometry import segment_midpoints, segment_orientations
 
 
 def fuse_meanshift(segments, scan, config: MeanShiftConfig = MeanShiftConfig()) -> FusionResult:
     """Fuse (N, 4) world-frame segments; ``scan`` (N,) is accepted for a common signature but unused."""
-    from sklearn.cluster import MeanShift
-
     segments, scan, valid = validate_input(segments, scan)
     seg = segments[valid]
     groups = np.zeros(len(seg), dtype=np.int64)
@@ -33,11 +31,7 @@ def fuse_meanshift(segments, scan, config: MeanShiftConfig = MeanShiftConfig()) 
         next_id = 0
         for o in np.unique(orient):
             members = np.flatnonzero(orient == o)
-            if len(members) == 1:
-                sub = np.zeros(1, np.int64)
-            else:
-                sub = MeanShift(bandwidth=config.center_bandwidth_m, bin_seeding=True,
-                                cluster_all=True).fit_predict(centres[members])
+            sub = mean_shift(centres[members], config.center_bandwidth_m)
             groups[members] = next_id + sub
             next_id += int(sub.max()) + 1
     return finish_clusters(segments, scan, valid, groups, merge_onto_mean_line)
