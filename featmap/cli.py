@@ -123,6 +123,51 @@ def run(
                     skip_bad_scans=skip_bad_scans).run()
 
 
+@command
+def download(
+    drive: str = typer.Option(..., "--drive", "-d", help="KITTI raw drive YYYY_MM_DD_drive_NNNN."),
+    data_dir: Path = typer.Option(Path("data/kitti"), "--data-dir", help="KITTI raw root to unpack into."),
+    base_url: str = typer.Option("https://s3.eu-central-1.amazonaws.com/avg-kitti/raw_data", "--base-url",
+                                 help="Server holding <drive>/<drive>_sync.zip and <date>_calib.zip."),
+    keep_zips: bool = typer.Option(False, "--keep-zips", help="Keep the downloaded zips in DATA_DIR/zips."),
+):
+    """Download a KITTI raw drive and its calibration (resumable, verified) into the raw layout."""
+    from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
+
+    from featmap.datasets.kitti_raw import parse_drive
+    from featmap.download import download_drive
+
+    parse_drive(drive)
+    with Progress(TextColumn("{task.description}"), BarColumn(), DownloadColumn(), TransferSpeedColumn()) as bar:
+        def factory(name):
+            task = bar.add_task(name, total=None)
+            return lambda done, total: bar.update(task, completed=done, total=total)
+
+        download_drive(drive, data_dir, base_url, factory, keep_zips)
+    typer.echo(f"unpacked {drive} into {data_dir}; run it with: featmap run --drive {drive} --data-dir {data_dir}")
+
+
+@command
+def evaluate(
+    fused: Path = typer.Argument(..., help="fused_<method>.csv (local frame, next to its metrics.json) or .geojson (WGS84)."),
+    truth: Path = typer.Option(..., "--truth", "-t", help="Building footprints (.geojson, WGS84) or a simulated drive's truth/ folder."),
+    origin: Optional[str] = typer.Option(None, "--origin", help="LAT,LON of the local frame of a CSV (default: its run's metrics.json)."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Also write the metrics to this JSON file."),
+):
+    """Score any fused map against ground-truth footprints (the metrics of EVALUATION.md)."""
+    import json
+
+    from featmap.evaluate_cli import evaluate_file
+
+    metrics = evaluate_file(fused, truth, origin)
+    if out is not None:
+        from featmap.io.atomic import atomic_write_text
+
+        atomic_write_text(out, json.dumps(metrics, indent=1))
+    for key, value in metrics.items():
+        typer.echo(f"{key:>20s}  {value}")
+
+
 def _parse_pose_noise(text: str) -> tuple[float, float]:
     try:
         pos, yaw = (float(v) for v in text.split(","))

@@ -135,6 +135,19 @@ def extract_segments(points: np.ndarray, config: ExtractionConfig = ExtractionCo
     """
     import open3d as o3d
 
+    # Open3D's RANSAC runs its iterations on several threads, which makes the chosen plane depend on
+    # scheduling even with a seed; one thread per scan is reproducible (the pipeline parallelises scans).
+    threads = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(1)
+    try:
+        return _extract(points, config, timings)
+    finally:
+        o3d.utility.set_max_threads(threads)
+
+
+def _extract(points: np.ndarray, config: ExtractionConfig, timings: dict[str, float] | None) -> ScanSegments:
+    import open3d as o3d
+
     clock = _StageClock(timings)
     o3d.utility.random.seed(int(config.seed))
     xyz = crop(points, config)
