@@ -124,6 +124,16 @@ def run(
 
 
 @command
+def compare(run_dir: Path = typer.Argument(..., help="A featmap run folder (with metrics.json).")):
+    """Write comparison.csv and comparison.md (the paper's Tables 1-3 for one run) and print them."""
+    from featmap.compare import write_comparison
+
+    _, md = write_comparison(run_dir)
+    typer.echo(md)
+    typer.echo(f"wrote {run_dir / 'comparison.csv'} and {run_dir / 'comparison.md'}")
+
+
+@command
 def download(
     drive: str = typer.Option(..., "--drive", "-d", help="KITTI raw drive YYYY_MM_DD_drive_NNNN."),
     data_dir: Path = typer.Option(Path("data/kitti"), "--data-dir", help="KITTI raw root to unpack into."),

@@ -277,6 +277,9 @@ class MappingPipeline:
         }
         metrics["timings_s"]["total"] = round(time.perf_counter() - t0, 3)
         atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=1))
+        from featmap.compare import write_comparison
+
+        write_comparison(out)
         self.report(metrics)
         return metrics
 
@@ -319,4 +322,5 @@ class MappingPipeline:
         if metrics["poor_gps_frames"]:
             console.print(f"[yellow]{len(metrics['poor_gps_frames'])} frame(s) with poor GPS (navstat/numsats/pos_accuracy); "
                           "their segments may be misplaced[/yellow]")
-        console.print(f"wrote segments.csv, fused_<method>.csv/.geojson, metrics.json, config.yaml to {self.out_dir}")
+        console.print(f"wrote segments.csv, fused_<method>.csv/.geojson, metrics.json, comparison.md, config.yaml "
+                      f"to {self.out_dir}")
