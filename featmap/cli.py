@@ -124,6 +124,27 @@ def run(
 
 
 @command
+def figures(
+    run_dir: Path = typer.Argument(..., help="A featmap run folder."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Output folder (default: RUN_DIR/figures)."),
+    tiles: Optional[str] = typer.Option(None, "--tiles", help="Tile source for Fig. 11: xyzservices name or {z}/{x}/{y} URL."),
+):
+    """Write the paper's figures (2-3, 6-11, 13-14) and Tables 1-3 for one run."""
+    from featmap.io.run_folder import load_run
+    from featmap.plotting.figures import make_figures
+
+    run_data = load_run(run_dir)
+    if tiles is not None:
+        import dataclasses
+
+        cfg = run_data.config.model_copy(update={"output": run_data.config.output.model_copy(update={"tile_source": tiles})})
+        run_data = dataclasses.replace(run_data, config=cfg)
+    paths = make_figures(run_data, out or Path(run_dir) / "figures")
+    for p in paths:
+        typer.echo(f"wrote {p}")
+
+
+@command
 def compare(run_dir: Path = typer.Argument(..., help="A featmap run folder (with metrics.json).")):
     """Write comparison.csv and comparison.md (the paper's Tables 1-3 for one run) and print them."""
     from featmap.compare import write_comparison

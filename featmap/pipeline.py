@@ -248,6 +248,7 @@ class MappingPipeline:
                 write_fused_geojson(out / f"fused_{run.name}.geojson", run.result.segments, run.result.support,
                                     self.dataset.geo_frame, run.name)
         self._write_trajectory(out / "trajectory.csv")
+        self._write_maps(out, table, runs, truth)
         save_config(self.config, out / "config.yaml")
         write_seconds = time.perf_counter() - t_write
         scan_s = np.asarray(self.stats.scan_seconds)
@@ -255,6 +256,7 @@ class MappingPipeline:
             "drive": self.dataset.drive,
             "data_dir": str(self.dataset.data_dir),
             "frames": [int(self.dataset.frames[0]), int(self.dataset.frames[-1])],
+            "frames_processed": [int(f) for f in frames_done],
             "scans_total": self.stats.scans_total,
             "scans_processed": self.stats.scans_total - len(self.stats.skipped),
             "scans_extracted_now": self.stats.scans_extracted,
@@ -282,6 +284,36 @@ class MappingPipeline:
         write_comparison(out)
         self.report(metrics)
         return metrics
+
+    def _write_maps(self, out: Path, table: SegmentTable, runs: list[MethodRun], truth) -> None:
+        """GeoJSON of segments/trajectory/truth, KML, the interactive HTML map and an overview plot."""
+        from featmap.io.geojson import write_segments_geojson
+
+        frame = self.dataset.geo_frame
+        traj = self.dataset.poses()[:, :2, 3]
+        cfg = self.config.output
+        layers = {r.name: (r.result.segments, r.result.support) for r in runs}
+        if cfg.geojson:
+            write_segments_geojson(out / "segments.geojson", table.segments, frame,
+                                   [{"scan": int(s)} for s in table.scan], {"layer": "extracted"})
+            write_segments_geojson(out / "trajectory.geojson", np.column_stack([traj[:-1], traj[1:]]), frame,
+                                   common={"layer": "trajectory"})
+            if truth is not None:
+                write_segments_geojson(out / "truth.geojson", truth.walls, frame,
+                                       [{"building": str(b)} for b in truth.building], {"layer": "truth"})
+        if cfg.kml:
+            from featmap.io.kml import write_kml
+
+            write_kml(out / "map.kml", layers, frame, trajectory=traj)
+        if cfg.html:
+            from featmap.io.html_map import write_html_map
+
+            write_html_map(out / "map.html", {"segments": (table.segments, None), **layers}, frame, traj,
+                           truth.walls if truth is not None else None)
+        if cfg.plots and runs:
+            from featmap.plotting.overview import overview_plot
+
+            overview_plot(out / "map_overview.png", layers, frame, traj, truth, cfg)
 
     def _write_trajectory(self, path: Path) -> None:
         poses = self.dataset.poses()
@@ -322,5 +354,5 @@ class MappingPipeline:
         if metrics["poor_gps_frames"]:
             console.print(f"[yellow]{len(metrics['poor_gps_frames'])} frame(s) with poor GPS (navstat/numsats/pos_accuracy); "
                           "their segments may be misplaced[/yellow]")
-        console.print(f"wrote segments.csv, fused_<method>.csv/.geojson, metrics.json, comparison.md, config.yaml "
-                      f"to {self.out_dir}")
+        console.print(f"wrote segments.csv, fused_<method>.csv/.geojson, metrics.json, comparison.md, config.yaml, "
+                      f"map.kml, map.html, map_overview.png to {self.out_dir} (figures: featmap figures {self.out_dir})")

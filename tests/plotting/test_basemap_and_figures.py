@@ -1,0 +1,128 @@
+"""Tile overlays against a tile server on 127.0.0.1, the fallback without it, and every figure."""
+
+import io
+import threading
+import warnings
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+import numpy as np
+import pytest
+
+from featmap.geo import GeoFrame
+from featmap.plotting.basemap import BasemapWarning, add_basemap
+
+
+class TileHandler(BaseHTTPRequestHandler):
+    requests: list = []
+
+    def log_message(self, *args):
+        pass
+
+    def do_GET(self):
+        from PIL import Image
+
+        TileHandler.requests.append(self.path)
+        buf = io.BytesIO()
+        Image.new("RGB", (256, 256), (30, 160, 60)).save(buf, format="PNG")
+        data = buf.getvalue()
+        self.send_response(200)
+        self.send_header("Content-Type", "image/png")
+        self.send_header("Content-Length", str(len(data)))
+        self.end_headers()
+        self.wfile.write(data)
+
+
+@pytest.fixture
+def tile_server():
+    httpd = ThreadingHTTPServer(("127.0.0.1", 0), TileHandler)
+    threading.Thread(target=httpd.serve_forever, daemon=True).start()
+    TileHandler.requests.clear()
+    yield f"http://127.0.0.1:{httpd.server_address[1]}/{{z}}/{{x}}/{{y}}.png"
+    httpd.shutdown()
+
+
+def _axes():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots()
+    ax.set_xlim(-50, 50)
+    ax.set_ylim(-50, 50)
+    return fig, ax
+
+
+def test_tiles_come_from_the_local_server_and_land_in_place(tile_server, tmp_path):
+    fig, ax = _axes()
+    assert add_basemap(ax, GeoFrame(49.011, 8.424), tile_server, cache_dir=tmp_path / "tiles", timeout_s=5)
+    assert TileHandler.requests and all(r.endswith(".png") for r in TileHandler.requests)
+    assert len(ax.images) == 1
+    left, right, bottom, top = ax.images[0].get_extent()
+    assert left <= -50 and right >= 50 and bottom <= -50 and top >= 50      # tiles cover the view
+    assert ax.get_xlim() == (-50, 50)
+    # the cache serves the second plot without asking the server again
+    n = len(TileHandler.requests)
+    fig2, ax2 = _axes()
+    assert add_basemap(ax2, GeoFrame(49.011, 8.424), tile_server, cache_dir=tmp_path / "tiles", timeout_s=5)
+    assert len(TileHandler.requests) == n
+
+
+def test_unreachable_tiles_warn_and_the_plot_goes_on():
+    fig, ax = _axes()
+    with pytest.warns(BasemapWarning, match="basemap unavailable"):
+        assert not add_basemap(ax, GeoFrame(49.011, 8.424), "http://127.0.0.1:9/{z}/{x}/{y}.png", timeout_s=1)
+    assert len(ax.images) == 0
+
+
+def test_figures_of_a_small_run(case1_drive, tmp_path, tile_server):
+    from PIL import Image
+    from typer.testing import CliRunner
+
+    from featmap.cli import app
+    from featmap.config import load_config
+    from featmap.datasets import KittiRawDataset
+    from featmap.pipeline import MappingPipeline
+
+    ds = KittiRawDataset(case1_drive.root, case1_drive.drive)
+    cfg = load_config(None, [f"output.tile_source={tile_server}", f"output.tile_cache_dir={tmp_path / 'tiles'}"])
+    MappingPipeline(ds, cfg, tmp_path / "run", ["proposed", "meanshift", "density"], cache_dir=tmp_path / "c").run()
+    for name in ("map.kml", "map.html", "map_overview.png", "segments.geojson", "trajectory.geojson", "truth.geojson"):
+        assert (tmp_path / "run" / name).stat().st_size > 100, name
+    res = CliRunner().invoke(app, ["figures", str(tmp_path / "run")])
+    assert res.exit_code == 0, res.output
+    out = tmp_path / "run" / "figures"
+    expected = {"fig02_feature_circles_one_scan.png": (1000, 800), "fig03_feature_circles_two_scans.png": (1000, 800),
+                "fig06_cluster_fusion.png": (1000, 800), "fig07_corner_optimisation.png": (1400, 700),
+                "fig08_global_map.png": (1600, 800), "fig09_local_maps_3d.png": None, "fig10_local_maps_2d.png": None,
+                "fig11_local_maps_tiles.png": (1300, 1300), "fig13_14_truth_vs_fused.png": (1600, 900)}
+    for name, size in expected.items():
+        img = Image.open(out / name)
+        assert img.size[0] > 500 and img.size[1] > 400, name
+        if size:
+            assert img.size == size, name
+        assert np.asarray(img.convert("L")).std() > 5, f"{name} looks blank"
+    for table in ("table1_counts", "table2_vertex_errors", "table3_time"):
+        assert (out / f"{table}.csv").read_text().count("\n") >= 2 and (out / f"{table}.md").exists()
+    assert "a (m)" in (out / "table2_vertex_errors.md").read_text()
+    assert any("/" in r for r in TileHandler.requests)          # Fig. 11 used the local tile server
+
+
+def test_figures_without_tiles_still_appear(case1_drive, tmp_path):
+    from featmap.config import load_config
+    from featmap.datasets import KittiRawDataset
+    from featmap.io.run_folder import load_run
+    from featmap.pipeline import MappingPipeline
+    from featmap.plotting.figures import fig_tile_overlays, local_map_centres
+
+    ds = KittiRawDataset(case1_drive.root, case1_drive.drive, slice(0, 20))
+    cfg = load_config(None, ["output.tile_source=http://127.0.0.1:9/{z}/{x}/{y}.png", "output.tile_timeout_s=1"])
+    with pytest.warns(BasemapWarning):
+        MappingPipeline(ds, cfg, tmp_path / "run", ["proposed"], cache_dir=tmp_path / "c").run()
+    run = load_run(tmp_path / "run")
+    from featmap.fusion import fuse
+
+    results = {"proposed": fuse("proposed", run.segments.segments, run.segments.scan, run.config)}
+    with pytest.warns(BasemapWarning):
+        path = fig_tile_overlays(run, results, local_map_centres(run), tmp_path)
+    assert path.stat().st_size > 10_000
