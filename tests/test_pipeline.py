@@ -18,7 +18,7 @@ runner = CliRunner()
 
 def _run(case1_drive, tmp_path, overrides=(), **kwargs):
     ds = KittiRawDataset(case1_drive.root, case1_drive.drive, skip_bad_scans=kwargs.pop("skip", False))
-    cfg = load_config(None, list(overrides))
+    cfg = load_config(None, ["output.plots=false", *overrides])   # no basemap fetches in these tests
     pipe = MappingPipeline(ds, cfg, tmp_path / "run", ["proposed", "density"], cache_dir=tmp_path / "cache",
                            skip_bad_scans=ds.skip_bad_scans, **kwargs)
     return pipe, pipe.run()
@@ -79,11 +79,12 @@ def test_bad_scan_fails_or_is_skipped_and_reported(drive_copy, tmp_path):
     pts[0, 0] = np.nan
     pts.tofile(scan)
     ds = KittiRawDataset(root, drive)
+    cfg = load_config(None, ["output.plots=false"])
     with pytest.raises(DatasetError, match="0000000005.bin: 1 point.*NaN.*--skip-bad-scans"):
-        MappingPipeline(ds, load_config(), tmp_path / "out", ["proposed"], cache_dir=tmp_path / "c").run()
+        MappingPipeline(ds, cfg, tmp_path / "out", ["proposed"], cache_dir=tmp_path / "c").run()
     assert not (tmp_path / "out").exists()                      # nothing written when the run fails
     ds = KittiRawDataset(root, drive, skip_bad_scans=True)
-    metrics = MappingPipeline(ds, load_config(), tmp_path / "out", ["proposed"], cache_dir=tmp_path / "c",
+    metrics = MappingPipeline(ds, cfg, tmp_path / "out", ["proposed"], cache_dir=tmp_path / "c",
                               skip_bad_scans=True).run()
     assert list(metrics["scans_skipped"]) == ["5"] and metrics["scans_processed"] == 39
 
@@ -91,7 +92,7 @@ def test_bad_scan_fails_or_is_skipped_and_reported(drive_copy, tmp_path):
 def test_cli_run_on_a_given_drive_and_missing_drive(case1_drive, tmp_path):
     res = runner.invoke(app, ["run", "--drive", case1_drive.drive, "--data-dir", str(case1_drive.root),
                               "--frames", "0:40:2", "--method", "proposed", "--out", str(tmp_path / "r"),
-                              "--workers", "1", "--cache-dir", str(tmp_path / "c")])
+                              "--workers", "1", "--cache-dir", str(tmp_path / "c"), "--set", "output.plots=false"])
     assert res.exit_code == 0, res.output
     assert json.loads((tmp_path / "r" / "metrics.json").read_text())["scans_processed"] == 20
     assert "proposed" in res.output and "precision" in res.output
