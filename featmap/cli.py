@@ -71,24 +71,11 @@ def fuse(
     fuse_and_write(table, methods, cfg, out)
 
 
-DEFAULT_WORLD = "residential"
-DEFAULT_SIM_ROOT = Path("data/sim")
+def ensure_default_drive():
+    """The embedded default drive (simulated on first use); see :mod:`featmap.simulation.default`."""
+    from featmap.simulation.default import ensure_default_drive as ensure
 
-
-def ensure_default_drive(sim_root: Path = DEFAULT_SIM_ROOT, world_name: str = DEFAULT_WORLD) -> tuple[Path, str]:
-    """The embedded default drive: simulate ``world_name`` on first use (with a progress bar), then reuse it."""
-    from featmap.progress import track
-    from featmap.simulation.sensors import SENSORS
-    from featmap.simulation.simulate import SIM_DATE, simulate_drive
-    from featmap.simulation.worlds import load_world
-
-    data_dir = sim_root / world_name
-    drive = f"{SIM_DATE}_drive_0001"
-    if not (data_dir / SIM_DATE / f"{drive}_sync" / "truth" / "simulation.json").exists():
-        typer.echo(f"first run: simulating the default drive ({world_name}) into {data_dir} (reused afterwards)")
-        world = load_world(world_name)
-        simulate_drive(world, data_dir, SENSORS["hdl64"], progress=lambda it, n: track(it, n, f"simulating {world_name}"))
-    return data_dir, drive
+    return ensure(echo=typer.echo)
 
 
 @command
@@ -115,12 +102,42 @@ def run(
     selection = parse_frames(frames)
     if drive is None:
         data_dir, drive = ensure_default_drive()
-        default_out = Path("runs") / DEFAULT_WORLD
+        default_out = Path("runs") / "residential"
     else:
         default_out = Path("runs") / drive
     dataset = KittiRawDataset(data_dir, drive, selection, skip_bad_scans=skip_bad_scans)
     MappingPipeline(dataset, cfg, out or default_out, methods, workers=workers, cache_dir=cache_dir,
                     skip_bad_scans=skip_bad_scans).run()
+
+
+@command
+def sweep(
+    sweep_file: Path = typer.Argument(..., help="Sweep YAML (base, input or drive, methods, grid, samples)."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Output folder (default: runs/sweeps/<file stem>)."),
+    workers: int = typer.Option(2, "--workers", "-j", min=1, help="Processes evaluating combinations."),
+):
+    """Sweep fusion parameters on cached segments: sweep.csv, heatmaps, curves, Pareto plot, best.yaml."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from featmap.progress import track
+    from featmap.sweep import load_sweep, run_sweep_file
+
+    spec = load_sweep(sweep_file)
+    out = out or Path("runs") / "sweeps" / Path(sweep_file).stem
+    rows, best = run_sweep_file(sweep_file, out, workers, progress=lambda it, n: track(it, n, "sweeping"))
+    table = Table(title=f"featmap sweep: {len(rows)} combinations")
+    for col in ("method", "combinations", "best " + spec.select.metric, "count at best"):
+        table.add_column(col, justify="right")
+    for method in spec.methods:
+        sub = [r for r in rows if r["method"] == method and r.get(spec.select.metric) is not None]
+        if sub:
+            b = (max if spec.select.goal == "max" else min)(sub, key=lambda r: r[spec.select.metric])
+            table.add_row(method, str(len(sub)), f"{b[spec.select.metric]:.4f}", str(b["count"]))
+        else:
+            table.add_row(method, str(len([r for r in rows if r["method"] == method])), "-", "-")
+    Console().print(table)
+    typer.echo(f"wrote sweep.csv, plots{', best.yaml' if best else ''} to {out}")
 
 
 @command

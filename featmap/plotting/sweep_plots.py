@@ -1,0 +1,98 @@
+"""Plots of a sweep: heatmaps over delta x gamma, curves per swept key, and a Pareto plot."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from featmap.io.atomic import atomic_path
+from featmap.plotting.style import method_color, method_label
+
+
+def _save(fig, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    plt.close(fig)
+
+
+def _mean_table(rows, x_key, y_key, value):
+    xs = sorted({r[x_key] for r in rows})
+    ys = sorted({r[y_key] for r in rows})
+    grid = np.full((len(ys), len(xs)), np.nan)
+    for i, y in enumerate(ys):
+        for j, x in enumerate(xs):
+            vals = [r[value] for r in rows if r[x_key] == x and r[y_key] == y and r.get(value) is not None]
+            if vals:
+                grid[i, j] = np.mean(vals)
+    return xs, ys, grid
+
+
+def plot_sweep(rows: list[dict], keys: list[str], out: Path, metric: str) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    proposed = [r for r in rows if r["method"] == "proposed"]
+    dkey, gkey = "fusion.proposed.delta_deg", "fusion.proposed.gamma"
+    if proposed and dkey in keys and gkey in keys:
+        fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))
+        for ax, value in zip(axes, ("count", metric)):
+            xs, ys, grid = _mean_table(proposed, dkey, gkey, value)
+            im = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis")
+            ax.set_xticks(range(len(xs)), [f"{x:g}" for x in xs])
+            ax.set_yticks(range(len(ys)), [f"{y:g}" for y in ys])
+            ax.set_xlabel("delta [deg]")
+            ax.set_ylabel("gamma [-]")
+            ax.set_title(f"proposed: {value} (mean over other swept keys)")
+            fig.colorbar(im, ax=ax, label=value)
+            for i in range(len(ys)):
+                for j in range(len(xs)):
+                    if np.isfinite(grid[i, j]):
+                        ax.text(j, i, f"{grid[i, j]:.3g}", ha="center", va="center", fontsize=7, color="w")
+        fig.tight_layout()
+        _save(fig, out / "heatmap_delta_gamma.png")
+        paths.append(out / "heatmap_delta_gamma.png")
+    curve_keys = [k for k in keys if len({r.get(k) for r in rows if k in r}) >= 2]
+    if curve_keys:
+        fig, axes = plt.subplots(len(curve_keys), 2, figsize=(12, 3.6 * len(curve_keys)), squeeze=False)
+        for row_axes, key in zip(axes, curve_keys):
+            method = key.split(".")[1]
+            sub = [r for r in rows if key in r and (r["method"] == method or method == "corners")]
+            xs = sorted({r[key] for r in sub})
+            for ax, value in zip(row_axes, ("count", metric)):
+                ys = [np.mean([r[value] for r in sub if r[key] == x and r.get(value) is not None] or [np.nan]) for x in xs]
+                ax.plot(xs, ys, "o-", color=method_color(method), label=method_label(method))
+                ax.set_xlabel(key)
+                ax.set_ylabel(value)
+                ax.grid(True, alpha=0.3)
+                ax.legend(fontsize=8)
+            row_axes[0].set_title(f"{key}: count (mean over other keys)")
+            row_axes[1].set_title(f"{key}: {metric}")
+        fig.tight_layout()
+        _save(fig, out / "curves.png")
+        paths.append(out / "curves.png")
+    scored = [r for r in rows if r.get("count_ratio") is not None and r.get("f1") is not None]
+    if scored:
+        fig, ax = plt.subplots(figsize=(9, 7))
+        pts = np.array([[r["count_ratio"], r["f1"]] for r in scored])
+        for method in sorted({r["method"] for r in scored}):
+            m = np.array([r["method"] == method for r in scored])
+            ax.scatter(pts[m, 0], pts[m, 1], color=method_color(method), label=method_label(method), alpha=0.7)
+        from featmap.sweep import pareto_front
+
+        front = pareto_front(pts)
+        ax.plot(pts[front, 0], pts[front, 1], "k--", lw=1, label="Pareto front")
+        ax.axvline(1.0, color="0.6", lw=0.8)
+        ax.set_xlabel("count_ratio = fused features / observable walls (conciseness; 1 is ideal)")
+        ax.set_ylabel("F1 of precision and recall (accuracy)")
+        ax.set_title("Conciseness against accuracy across all methods and settings")
+        ax.grid(True, alpha=0.3)
+        ax.legend()
+        _save(fig, out / "pareto.png")
+        paths.append(out / "pareto.png")
+    return paths

@@ -1,0 +1,108 @@
+import csv
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from featmap.cli import app
+from featmap.config import load_config
+from featmap.datasets import KittiRawDataset
+from featmap.errors import ConfigError
+from featmap.pipeline import MappingPipeline
+from featmap.sweep import expand, load_sweep, pareto_front, run_sweep_file
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def case1_run(case1_drive, tmp_path_factory):
+    out = tmp_path_factory.mktemp("sweeprun")
+    ds = KittiRawDataset(case1_drive.root, case1_drive.drive)
+    MappingPipeline(ds, load_config(None, ["output.plots=false"]), out / "run", ["proposed"], cache_dir=out / "c").run()
+    return out / "run"
+
+
+def _write(tmp_path, text):
+    path = tmp_path / "s.yaml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("grid,match", [
+    ("  fusion.proposed.delta: [1, 2]", r"grid key 'fusion.proposed.delta' does not exist; did you mean 'fusion.proposed.delta_deg'"),
+    ("  fusion.proposed.eta_m: {start: 2, stop: 1, num: 3}", r"stop 1.0 < start 2.0"),
+    ("  fusion.proposed.gamma: ['high', 0.5]", r"'fusion.proposed.gamma' input should be a valid number"),
+    ("  fusion.proposed.gamma: []", r"grid key 'fusion.proposed.gamma' has no values"),
+    ("  extraction.voxel_size_m: [0.1, 0.2]", r"never re-extracts"),
+    ("  fusion.proposed.gamma: [0.5, 1.5]", r"'fusion.proposed.gamma' input should be less than or equal to 1"),
+])
+def test_bad_sweeps_fail_before_anything_runs(tmp_path, case1_run, grid, match):
+    path = _write(tmp_path, f"input: {case1_run / 'segments.csv'}\nmethods: [proposed]\ngrid:\n{grid}\n")
+    with pytest.raises(ConfigError, match=match):
+        run_sweep_file(path, tmp_path / "out", workers=1)
+    assert not (tmp_path / "out").exists()
+
+
+def test_empty_grid_and_unknown_keys(tmp_path):
+    with pytest.raises(ConfigError, match="the grid is empty"):
+        load_sweep(_write(tmp_path, "input: x.csv\ngrid: {}\n"))
+    with pytest.raises(ConfigError, match="unknown key 'gird'"):
+        load_sweep(_write(tmp_path, "input: x.csv\ngird: {a: [1]}\ngrid: {fusion.proposed.gamma: [0.1]}\n"))
+
+
+def test_expansion_per_method_and_random_samples(tmp_path):
+    spec = load_sweep(_write(tmp_path, """
+input: x.csv
+methods: [proposed, meanshift]
+grid:
+  fusion.proposed.delta_deg: [2, 5]
+  fusion.proposed.eta_m: {start: 0.2, stop: 1.0, step: 0.4}
+  fusion.meanshift.center_bandwidth_m: [1, 3, 5]
+"""))
+    combos, configs = expand(spec, {})
+    assert len([c for c in combos if c.method == "proposed"]) == 2 * 3
+    assert len([c for c in combos if c.method == "meanshift"]) == 3
+    assert configs[combos[0].key].fusion.proposed.eta_m == 0.2
+    spec = spec.model_copy(update={"samples": 4})
+    combos2, _ = expand(spec, {})
+    assert len(combos2) == 4 and {c.key for c in combos2} <= {c.key for c in combos}
+
+
+def test_sweep_runs_resumes_and_writes_best(tmp_path, case1_run):
+    path = _write(tmp_path, f"""
+input: {case1_run / 'segments.csv'}
+methods: [proposed, density]
+grid:
+  fusion.proposed.delta_deg: [2, 5, 10]
+  fusion.proposed.gamma: [0.0, 0.5]
+  fusion.density.lateral_eps_m: [0.5, 20]
+""")
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["sweep", str(path), "--out", str(out), "--workers", "2"])
+    assert res.exit_code == 0, res.output
+    rows = list(csv.DictReader(open(out / "sweep.csv")))
+    assert len(rows) == 3 * 2 + 2
+    assert {"method", "fusion.proposed.delta_deg", "count", "precision", "recall", "quality", "seconds"} <= set(rows[0])
+    best = load_config(out / "best.yaml")
+    assert best.fusion.proposed.delta_deg in (2, 5, 10)
+    for name in ("heatmap_delta_gamma.png", "curves.png", "pareto.png"):
+        assert (out / name).stat().st_size > 5000
+    # resume: drop three finished results; only those are evaluated again
+    lines = (out / "results.jsonl").read_text().splitlines()
+    (out / "results.jsonl").write_text("\n".join(lines[:-3]) + "\n" + lines[-3][:10])   # last line cut short
+    rows2, _ = run_sweep_file(path, out, workers=1)
+    new_lines = (out / "results.jsonl").read_text().splitlines()
+    assert len(new_lines) == len(lines)
+    assert new_lines[:-3] == lines[:-3]                      # kept, not evaluated again
+    assert all(json.loads(line)["key"] for line in new_lines)
+    assert len(rows2) == 8
+    # the wide density bandwidth merges the building's parallel walls: worse precision than the narrow one
+    dens = {float(r["fusion.density.lateral_eps_m"]): r for r in rows if r["method"] == "density"}
+    assert float(dens[20.0]["count"]) <= float(dens[0.5]["count"])
+
+
+def test_pareto_front():
+    import numpy as np
+
+    pts = np.array([[1.0, 0.9], [1.2, 0.95], [1.1, 0.8], [0.9, 0.5], [1.5, 0.94]])
+    assert sorted(pareto_front(pts).tolist()) == [0, 1, 3]
