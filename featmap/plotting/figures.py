@@ -22,6 +22,7 @@ from featmap.plotting.style import SEGMENT_COLOR, add_scalebar, draw_segments, f
 FIG_SIZE = (10, 8)
 DPI = 100
 LOCAL_HALF_M = 30.0
+LINESTYLES = {"proposed": "-", "meanshift": "--", "density": ":"}
 
 
 def _save(fig, path: Path) -> Path:
@@ -206,7 +207,7 @@ def fig_tile_overlays(run: RunData, results: dict, centres: np.ndarray, out: Pat
 
     cfg = run.config.output
     fig, axes = _figure(2, 2, size=(13, 13))
-    styles = {"proposed": "-", "meanshift": "--", "density": ":"}
+    styles = LINESTYLES
     ok_all = True
     for ax, centre, letter in zip(axes.flat, centres, "abcd"):
         view_box(ax, centre, LOCAL_HALF_M)
@@ -239,14 +240,14 @@ def fig_truth_comparison(run: RunData, results: dict, out: Path) -> Path | None:
             seen.add(lab)
             vertices.append((lab, p))
     vertices = sorted(vertices)[:4] if vertices else []
-    n = len(vertices)
     fig = _figure(size=(16, 9))[0]
     fig.clf()
-    grid = fig.add_gridspec(2, max(n, 1) + 2)
+    grid = fig.add_gridspec(2, 4)
     main = fig.add_subplot(grid[:, :2])
     draw_truth(main, truth)
-    for name, res in results.items():
-        draw_method(main, name, res.segments, lw=1.5)
+    order = sorted(results, key=lambda m: m == "proposed")      # the proposed method on top
+    for name in order:
+        draw_method(main, name, results[name].segments, lw=1.5, linestyles=LINESTYLES.get(name, "-"))
     for lab, p in vertices:
         main.annotate(lab, p, fontsize=14, fontweight="bold", xytext=(6, 6), textcoords="offset points")
         main.add_patch(__import__("matplotlib.patches", fromlist=["Rectangle"]).Rectangle(p - 1.5, 3, 3, fill=False, ec="g", lw=1.5))
@@ -257,10 +258,10 @@ def fig_truth_comparison(run: RunData, results: dict, out: Path) -> Path | None:
         main.set_ylim(lo[1] - 10, hi[1] + 10)
     finish_map_axes(main, "Figs. 13-14: ground truth and fused features")
     for k, (lab, p) in enumerate(vertices):
-        ax = fig.add_subplot(grid[k // 2, 2 + k % 2] if n > 2 else grid[k, 2])
+        ax = fig.add_subplot(grid[k // 2, 2 + k % 2])
         draw_truth(ax, truth)
-        for name, res in results.items():
-            draw_method(ax, name, res.segments, endpoints=True)
+        for name in order:
+            draw_method(ax, name, results[name].segments, endpoints=True, linestyles=LINESTYLES.get(name, "-"))
         view_box(ax, p, 1.5)
         ax.set_aspect("equal", adjustable="box")
         ax.set_title(f"vertex {lab} (zoom)", fontsize=9)
