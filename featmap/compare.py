@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 from pathlib import Path
 
-from featmap.errors import InputFileError
 from featmap.io.atomic import atomic_write_text
+from featmap.io.jsonfile import read_json
 
 COLUMNS = ["method", "count", "count_ratio", "precision", "precision_any", "recall", "redundancy", "offset_cm",
            "corner_err_cm", "seconds"]
@@ -56,13 +55,7 @@ def comparison_markdown(metrics: dict, rows: list[dict]) -> str:
 def write_comparison(run_dir: str | Path) -> tuple[list[dict], str]:
     """Read ``run_dir/metrics.json``; write ``comparison.csv`` and ``comparison.md`` next to it."""
     run_dir = Path(run_dir)
-    path = run_dir / "metrics.json"
-    try:
-        metrics = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputFileError(path, "not found: is this a featmap run folder?") from None
-    except json.JSONDecodeError as exc:
-        raise InputFileError(path, f"not valid JSON ({exc.msg})", line=exc.lineno) from None
+    metrics = read_json(run_dir / "metrics.json", "not found: is this a featmap run folder?")
     rows = comparison_rows(metrics)
     buf = io.StringIO()
     if rows:

@@ -133,14 +133,11 @@ def _coverage_of_frames(path: Path, walls: np.ndarray, frames: list[int]) -> tup
 
 def truth_from_footprints(path: str | Path, frame: GeoFrame) -> GroundTruth:
     """Building footprints from a GeoJSON FeatureCollection (WGS84 Polygons), every wall fully observable."""
+    from featmap.io.jsonfile import read_json
+
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputFileError(path, "file not found") from None
-    except json.JSONDecodeError as exc:
-        raise InputFileError(path, f"not valid JSON ({exc.msg})", line=exc.lineno) from None
-    if data.get("type") != "FeatureCollection":
+    data = read_json(path)
+    if not isinstance(data, dict) or data.get("type") != "FeatureCollection":
         raise InputFileError(path, "expected a GeoJSON FeatureCollection of building Polygons")
     walls, building, labels = [], [], []
     for n, feat in enumerate(data.get("features", [])):

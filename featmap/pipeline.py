@@ -26,7 +26,7 @@ from rich.console import Console
 from rich.table import Table
 
 from featmap.config import FeatmapConfig, save_config
-from featmap.errors import DatasetError, FeatmapError
+from featmap.errors import DatasetError
 from featmap.fusion import FusionResult, fuse
 from featmap.io.atomic import atomic_path, atomic_write_text
 from featmap.io.segments_csv import SegmentTable, write_fused_csv, write_segments_csv

@@ -23,7 +23,6 @@ STREETS = [[[-60, 0], [260, 0]], [[170, -60], [170, 250]], [[-60, 110], [260, 11
 
 def main(seed: int = 18) -> None:
     rng = np.random.default_rng(seed)
-    road = LineString(ROUTE).buffer(9.0)
     streets = [LineString(s).buffer(9.0) for s in STREETS]
     taken: list[Polygon] = []
     objects: list[dict] = []
@@ -81,7 +80,7 @@ def main(seed: int = 18) -> None:
                         f0 = a + along * (s + 1) + np.array([-along[1], along[0]]) * side * rng.uniform(7.5, 8.5)
                         f1 = f0 + along * (width - 2)
                         fence = LineString([f0, f1])
-                        if not any(fence.intersects(t) for t in taken) and not any(fence.intersects(r) for r in []):
+                        if not any(fence.intersects(t) for t in taken):
                             objects.append({"id": f"fence{len(objects):03d}", "kind": "fence",
                                             "line": np.round([f0, f1], 2).tolist(),
                                             "height": float(round(rng.uniform(0.9, 1.6), 2))})

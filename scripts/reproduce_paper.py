@@ -21,8 +21,6 @@ import shutil
 import time
 from pathlib import Path
 
-import numpy as np
-
 from featmap.config import load_config
 from featmap.datasets import KittiRawDataset
 from featmap.evaluation import compute_metrics

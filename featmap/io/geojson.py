@@ -10,6 +10,7 @@ import numpy as np
 from featmap.errors import InputFileError
 from featmap.geo import GeoFrame
 from featmap.io.atomic import atomic_write_text
+from featmap.io.jsonfile import read_json
 
 
 def segments_feature_collection(segments: np.ndarray, frame: GeoFrame, properties: list[dict] | None = None,
@@ -51,13 +52,8 @@ def write_fused_geojson(path: str | Path, segments: np.ndarray, support: np.ndar
 def read_segments_geojson(path: str | Path, frame: GeoFrame) -> tuple[np.ndarray, list[dict]]:
     """Read LineString features back into local-frame segments (M, 4) and their properties."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputFileError(path, "file not found") from None
-    except json.JSONDecodeError as exc:
-        raise InputFileError(path, f"not valid JSON ({exc.msg})", line=exc.lineno) from None
-    if data.get("type") != "FeatureCollection":
+    data = read_json(path)
+    if not isinstance(data, dict) or data.get("type") != "FeatureCollection":
         raise InputFileError(path, "expected a GeoJSON FeatureCollection")
     segs, props = [], []
     for n, feat in enumerate(data.get("features", [])):
@@ -73,8 +69,8 @@ def read_segments_geojson(path: str | Path, frame: GeoFrame) -> tuple[np.ndarray
 
 def first_position(path: str | Path) -> GeoFrame:
     """A local frame at the first position of a GeoJSON file (for scoring WGS84 files directly)."""
-    data = json.loads(Path(path).read_text())
-    for feat in data.get("features", []):
+    data = read_json(path)
+    for feat in data.get("features", []) if isinstance(data, dict) else []:
         coords = np.asarray((feat.get("geometry") or {}).get("coordinates", []), dtype=object)
         while coords.ndim and len(coords) and not np.isscalar(coords[0]):
             coords = np.asarray(coords[0], dtype=object)

@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from featmap.config import FeatmapConfig, load_config
-from featmap.errors import InputFileError
 from featmap.geo import GeoFrame
+from featmap.io.jsonfile import read_json
 from featmap.io.segments_csv import SegmentTable, read_fused_csv, read_segments_csv
 
 
@@ -38,10 +37,7 @@ def load_run(run_dir: str | Path) -> RunData:
     from featmap.evaluation import load_truth
 
     run_dir = Path(run_dir)
-    path = run_dir / "metrics.json"
-    if not path.exists():
-        raise InputFileError(path, "not found: is this a featmap run folder? (featmap run writes it)")
-    metrics = json.loads(path.read_text())
+    metrics = read_json(run_dir / "metrics.json", "not found: is this a featmap run folder? (featmap run writes it)")
     config = load_config(run_dir / "config.yaml")
     segments = read_segments_csv(run_dir / "segments.csv")
     fused = {name: read_fused_csv(run_dir / f"fused_{name}.csv") for name in metrics["methods"]}

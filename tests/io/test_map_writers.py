@@ -2,7 +2,6 @@ import json
 import xml.etree.ElementTree as ET
 
 import numpy as np
-import pytest
 
 from featmap.geo import GeoFrame
 from featmap.io.geojson import read_segments_geojson, write_fused_geojson
