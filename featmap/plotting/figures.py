@@ -182,7 +182,11 @@ def fig_local_maps(run: RunData, results: dict, centres: np.ndarray, out: Path) 
             ax.set_zlabel("z [m]", fontsize=7)
             ax.tick_params(labelsize=6)
             ax.set_title(f"({letters[c]}) {method_label(name)}: {int(sel.sum())} planes", fontsize=8)
-    fig.suptitle(f"Fig. 9: fused planes of the three methods in 3D, four local maps ({2 * LOCAL_HALF_M:.0f} m x {2 * LOCAL_HALF_M:.0f} m)")
+    from matplotlib.patches import Patch
+
+    fig.legend(handles=[Patch(facecolor=method_color(m), alpha=0.55, label=method_label(m)) for m in methods],
+               loc="lower center", ncol=len(methods))
+    fig.suptitle(f"Fig. 9: fused planes of the three methods in 3D, four local maps ({2 * LOCAL_HALF_M:.0f} m x {2 * LOCAL_HALF_M:.0f} m, axes in metres)")
     fig.tight_layout()
     p9 = _save(fig, out / "fig09_local_maps_3d.png")
 

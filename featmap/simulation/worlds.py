@@ -259,6 +259,9 @@ def load_world(name_or_file: str | Path) -> World:
             data = _world_from_geojson(json.loads(text), str(path))
         except json.JSONDecodeError as exc:
             raise WorldError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg})") from None
+        except (KeyError, TypeError, IndexError, ValueError, AttributeError) as exc:
+            raise WorldError(f"{path}: malformed GeoJSON feature ({type(exc).__name__}: {exc}); every feature needs "
+                             "a geometry with coordinates") from None
     else:
         try:
             data = yaml.safe_load(text)

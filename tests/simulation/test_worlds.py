@@ -55,3 +55,13 @@ def test_geojson_world_like_an_openstreetmap_export(tmp_path):
 def test_unknown_world_name_lists_builtins():
     with pytest.raises(WorldError, match="built-in worlds: .*residential"):
         load_world("atlantis")
+
+
+def test_malformed_geojson_world_is_one_line(tmp_path):
+    path = tmp_path / "bad.geojson"
+    path.write_text('{"type": "FeatureCollection", "features": [{"properties": {"kind": "route"}, "geometry": {}}]}')
+    with pytest.raises(WorldError, match="bad.geojson: malformed GeoJSON feature"):
+        load_world(path)
+    path.write_text('{"type": "FeatureCollection", "features": [')
+    with pytest.raises(WorldError, match=r"bad.geojson:1: not valid JSON"):
+        load_world(path)
