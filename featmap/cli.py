@@ -259,6 +259,17 @@ def simulate(
 
 
 def main() -> None:
+    import warnings
+
+    _format = warnings.formatwarning
+
+    def one_line(message, category, filename, lineno, line=None):
+        # featmap's own warnings (e.g. unreachable map tiles) are messages for users, not code locations
+        if category.__module__.startswith("featmap"):
+            return f"featmap: warning: {message}\n"
+        return _format(message, category, filename, lineno, line)
+
+    warnings.formatwarning = one_line
     app(prog_name="featmap")
 
 
