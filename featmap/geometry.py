@@ -116,14 +116,6 @@ def fit_line_tls(points: np.ndarray, weights: np.ndarray | None = None) -> tuple
     return centroid, direction
 
 
-def project_extent(points: np.ndarray, centroid: np.ndarray, direction: np.ndarray) -> np.ndarray:
-    """Project (K, 2) points onto the line and return the segment between the extreme projections (4,)."""
-    t = (points - centroid) @ direction
-    p1 = centroid + t.min() * direction
-    p2 = centroid + t.max() * direction
-    return np.concatenate([p1, p2])
-
-
 def line_intersection(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray) -> np.ndarray | None:
     """Intersection of lines ``p1 + s d1`` and ``p2 + t d2`` (2,), or None when parallel."""
     cross = d1[0] * d2[1] - d1[1] * d2[0]

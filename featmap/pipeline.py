@@ -83,6 +83,13 @@ def fuse_and_write(table: SegmentTable, methods: list[str], config: FeatmapConfi
     return runs
 
 
+def distinct_scans(labels: np.ndarray, scan: np.ndarray, n_features: int) -> np.ndarray:
+    """(M,) number of different scans among the members of each fused feature."""
+    keep = labels >= 0
+    pairs = np.unique(np.stack([labels[keep], scan[keep]]), axis=1)
+    return np.bincount(pairs[0], minlength=n_features) if pairs.size else np.zeros(n_features, np.int64)
+
+
 # --- extraction with a per-scan cache ----------------------------------------------------------------
 
 def extract_scan(item, config) -> np.ndarray:
@@ -246,7 +253,8 @@ class MappingPipeline:
             write_fused_csv(out / f"fused_{run.name}.csv", run.result.segments, run.result.support)
             if self.config.output.geojson:
                 write_fused_geojson(out / f"fused_{run.name}.geojson", run.result.segments, run.result.support,
-                                    self.dataset.geo_frame, run.name)
+                                    self.dataset.geo_frame, run.name, distinct_scans(run.result.labels, table.scan,
+                                                                                     len(run.result)))
         self._write_trajectory(out / "trajectory.csv")
         self._write_maps(out, table, runs, truth)
         save_config(self.config, out / "config.yaml")

@@ -33,7 +33,9 @@ def test_run_writes_the_output_contract_and_scores_against_truth(case1_drive, tm
         assert next(csv.reader(open(out / f"fused_{m}.csv")))[:5] == ["x1", "y1", "x2", "y2", "support"]
         fc = json.loads((out / f"fused_{m}.geojson").read_text())
         assert fc["type"] == "FeatureCollection"
-        assert {"method", "support", "length_m"} <= set(fc["features"][0]["properties"])
+        props = fc["features"][0]["properties"]
+        assert {"method", "support", "length_m", "scans"} <= set(props)
+        assert 1 <= props["scans"] <= props["support"]
         lon, lat = fc["features"][0]["geometry"]["coordinates"][0]
         assert 8.3 < lon < 8.5 and 48.9 < lat < 49.1
     assert load_config(out / "config.yaml") == pipe.config

@@ -43,9 +43,13 @@ def write_segments_geojson(path: str | Path, segments: np.ndarray, frame: GeoFra
 
 
 def write_fused_geojson(path: str | Path, segments: np.ndarray, support: np.ndarray, frame: GeoFrame,
-                        method: str) -> Path:
-    """``fused_<method>.geojson``: properties ``method``, ``support``, ``length_m``."""
+                        method: str, scans: np.ndarray | None = None) -> Path:
+    """``fused_<method>.geojson``: properties ``method``, ``support``, ``length_m`` (and ``scans``: distinct
+    scans among the members, when given)."""
     props = [{"support": int(s)} for s in np.asarray(support)]
+    if scans is not None:
+        for p, n in zip(props, np.asarray(scans)):
+            p["scans"] = int(n)
     return write_segments_geojson(path, segments, frame, props, {"method": method})
 
 

@@ -19,7 +19,6 @@ from featmap.errors import InputFileError
 from featmap.io.atomic import atomic_write_text
 
 SEGMENT_COLUMNS = ("scan", "x1", "y1", "x2", "y2")
-SEGMENT_EXTRA_COLUMNS = ("n_points", "z_min", "z_max", "rms")
 FUSED_COLUMNS = ("x1", "y1", "x2", "y2", "support")
 
 
