@@ -92,6 +92,11 @@ def fig_feature_circles(run: RunData, out: Path) -> list[Path]:
 
 
 def fig_cluster_fusion(run: RunData, result, out: Path) -> Path:
+    """Fig. 6 in the fused line's own frame: along the wall in metres, across it in centimetres.
+
+    The members of one cluster differ by centimetres over metres of wall, so the across axis is
+    stretched to make the least-squares fit and the endpoint projections visible.
+    """
     seg = run.segments.segments
     support = result.support
     c = int(np.argsort(support)[len(support) // 2]) if len(support) else -1
@@ -99,21 +104,32 @@ def fig_cluster_fusion(run: RunData, result, out: Path) -> Path:
     if c >= 0:
         members = seg[result.labels == c]
         fused = result.segments_before_corners[c]
-        draw_segments(ax, members, SEGMENT_COLOR, lw=1, label=f"member segments ({len(members)} scans)", alpha=0.8)
-        ends = members.reshape(-1, 2)
-        ax.plot(ends[:, 0], ends[:, 1], "k.", ms=4, label="member endpoints (fitted points)")
+        origin = fused[:2]
         d = (fused[2:] - fused[:2]) / max(np.hypot(*(fused[2:] - fused[:2])), 1e-9)
-        t = (ends - fused[:2]) @ d
-        proj = fused[:2] + t[:, None] * d
-        for p, q in zip(ends, proj):
-            ax.plot([p[0], q[0]], [p[1], q[1]], ":", color="0.5", lw=0.6)
-        span = np.array([fused[:2] - 3 * d, fused[2:] + 3 * d])
-        ax.plot(span[:, 0], span[:, 1], "--", color="0.3", lw=1, label="least-squares line")
-        ax.plot(proj[:, 0], proj[:, 1], "x", color="0.3", ms=4, label="projected endpoints")
-        draw_segments(ax, fused[None], method_color("proposed"), lw=3, label="fused feature (extreme projections)")
-        ax.set_xlim(min(ends[:, 0].min(), fused[[0, 2]].min()) - 2, max(ends[:, 0].max(), fused[[0, 2]].max()) + 2)
-        ax.set_ylim(min(ends[:, 1].min(), fused[[1, 3]].min()) - 2, max(ends[:, 1].max(), fused[[1, 3]].max()) + 2)
-    finish_map_axes(ax, f"Fig. 6: fusion of one cluster (support {int(support[c]) if c >= 0 else 0})")
+        n = np.array([-d[1], d[0]])
+
+        def frame(points):                       # (K, 2) world -> (along m, across cm)
+            rel = points - origin
+            return np.column_stack([rel @ d, 100 * (rel @ n)])
+
+        ends = frame(members.reshape(-1, 2))
+        for k in range(len(members)):
+            a, b = ends[2 * k], ends[2 * k + 1]
+            ax.plot([a[0], b[0]], [a[1], b[1]], "-", color=SEGMENT_COLOR, lw=1, alpha=0.8,
+                    label=f"member segments ({len(members)} scans)" if k == 0 else None)
+        ax.plot(ends[:, 0], ends[:, 1], "k.", ms=4, label="member endpoints (fitted points)")
+        for p in ends:
+            ax.plot([p[0], p[0]], [p[1], 0.0], ":", color="0.5", lw=0.6)
+        length = np.hypot(*(fused[2:] - fused[:2]))
+        ax.axhline(0.0, ls="--", color="0.3", lw=1, label="least-squares line")
+        ax.plot(ends[:, 0], np.zeros(len(ends)), "x", color="0.3", ms=5, label="projected endpoints")
+        ax.plot([0, length], [0, 0], "-", color=method_color("proposed"), lw=3, label="fused feature (extreme projections)")
+        ax.set_xlim(-0.05 * length - 0.5, 1.05 * length + 0.5)
+    ax.set_xlabel("along the fused feature [m]")
+    ax.set_ylabel("across the fused feature [cm] (stretched)")
+    ax.set_title(f"Fig. 6: fusion of one cluster (support {int(support[c]) if c >= 0 else 0})")
+    ax.legend(loc="best", fontsize=8)
+    ax.grid(True, alpha=0.3)
     return _save(fig, out / "fig06_cluster_fusion.png")
 
 
