@@ -28,6 +28,16 @@ CALIB_FILES = ("calib_imu_to_velo.txt", "calib_velo_to_cam.txt", "calib_cam_to_c
 TIMESTAMP_FORMAT = "%Y-%m-%d %H:%M:%S.%f"
 
 
+def _read_text(path: Path, what: str) -> str:
+    """The text of a KITTI text file; a one-line DatasetError naming the file when it is missing or unreadable."""
+    try:
+        return path.read_text()
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: {what} not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DatasetError(f"{path}: cannot read {what} ({exc})") from None
+
+
 # --- velodyne scans ---------------------------------------------------------------------------------
 
 def write_velo_bin(path: str | Path, points: np.ndarray) -> Path:
@@ -74,13 +84,7 @@ def write_oxts_packet(path: str | Path, values: dict[str, float]) -> Path:
 def read_oxts_packet(path: str | Path) -> dict[str, float]:
     """Parse one OXTS file (one line of 30 numbers) into a dict keyed by ``OXTS_FIELDS``."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: OXTS file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DatasetError(f"{path}: cannot read OXTS packet ({exc})") from None
-    fields = text.split()
+    fields = _read_text(path, "OXTS file").split()
     if len(fields) != len(OXTS_FIELDS):
         raise DatasetError(f"{path}: OXTS packet has {len(fields)} fields, expected {len(OXTS_FIELDS)} "
                            "(see oxts/dataformat.txt)")
@@ -109,12 +113,7 @@ def write_timestamps(path: str | Path, seconds: np.ndarray, start: dt.datetime) 
 def read_timestamps(path: str | Path) -> np.ndarray:
     """Seconds (float64) since the first timestamp of a KITTI ``timestamps.txt``."""
     path = Path(path)
-    try:
-        lines = [line.strip() for line in path.read_text().splitlines() if line.strip()]
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: timestamps file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DatasetError(f"{path}: cannot read timestamps ({exc})") from None
+    lines = [line.strip() for line in _read_text(path, "timestamps file").splitlines() if line.strip()]
     stamps = []
     for n, line in enumerate(lines, start=1):
         try:
@@ -143,12 +142,7 @@ def write_calib_file(path: str | Path, entries: dict[str, np.ndarray | str]) -> 
 def read_calib_file(path: str | Path) -> dict[str, np.ndarray]:
     """Parse a KITTI calibration file into arrays (non-numeric entries such as calib_time are skipped)."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: calibration file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DatasetError(f"{path}: cannot read calibration file ({exc})") from None
+    text = _read_text(path, "calibration file")
     data = {}
     for n, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
