@@ -54,6 +54,26 @@ def validate_input(segments, scan) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return segments, scan, valid
 
 
+def cut_at_extreme_projections(points: np.ndarray, labels: np.ndarray, n_clusters: int, mx: np.ndarray,
+                               my: np.ndarray, ux: np.ndarray, uy: np.ndarray) -> np.ndarray:
+    """Per cluster, the segment between the extreme projections of its points onto its line.
+
+    Args:
+        points: (K, 2) member endpoints; labels: (K,) their cluster in ``[0, n_clusters)``.
+        mx, my, ux, uy: (M,) a point on each cluster's line and the line's unit direction.
+    Returns:
+        (M, 4) fused segments (a cluster without points collapses onto its line point).
+    """
+    t = (points[:, 0] - mx[labels]) * ux[labels] + (points[:, 1] - my[labels]) * uy[labels]
+    tmin = np.full(n_clusters, np.inf)
+    tmax = np.full(n_clusters, -np.inf)
+    np.minimum.at(tmin, labels, t)
+    np.maximum.at(tmax, labels, t)
+    empty = ~np.isfinite(tmin)
+    tmin[empty] = tmax[empty] = 0.0
+    return np.stack([mx + tmin * ux, my + tmin * uy, mx + tmax * ux, my + tmax * uy], axis=1)
+
+
 def fit_clusters(segments: np.ndarray, labels: np.ndarray, n_clusters: int,
                  weights: np.ndarray | None = None) -> np.ndarray:
     """Fuse each cluster into one segment, vectorised over clusters.
@@ -93,14 +113,7 @@ def fit_clusters(segments: np.ndarray, labels: np.ndarray, n_clusters: int,
     # a canonical sign that makes the result independent of the input order.
     theta = 0.5 * np.arctan2(2 * sxy, sxx - syy)
     ux, uy = np.cos(theta), np.sin(theta)
-    t = dx * ux[lab2] + dy * uy[lab2]
-    tmin = np.full(n_clusters, np.inf)
-    tmax = np.full(n_clusters, -np.inf)
-    np.minimum.at(tmin, lab2, t)
-    np.maximum.at(tmax, lab2, t)
-    empty = ~np.isfinite(tmin)
-    tmin[empty] = tmax[empty] = 0.0
-    return np.stack([mx + tmin * ux, my + tmin * uy, mx + tmax * ux, my + tmax * uy], axis=1)
+    return cut_at_extreme_projections(pts, lab2, n_clusters, mx, my, ux, uy)
 
 
 def relabel_by_first_appearance(groups: np.ndarray, scan: np.ndarray, segments: np.ndarray,
@@ -178,15 +191,7 @@ def merge_onto_mean_line(segments: np.ndarray, labels: np.ndarray, n_clusters: i
                              np.bincount(lab, w * np.cos(phi), n_clusters))
     ux, uy = np.cos(theta), np.sin(theta)
     pts = np.concatenate([seg[:, :2], seg[:, 2:]])
-    lab2 = np.concatenate([lab, lab])
-    t = (pts[:, 0] - mx[lab2]) * ux[lab2] + (pts[:, 1] - my[lab2]) * uy[lab2]
-    tmin = np.full(n_clusters, np.inf)
-    tmax = np.full(n_clusters, -np.inf)
-    np.minimum.at(tmin, lab2, t)
-    np.maximum.at(tmax, lab2, t)
-    empty = ~np.isfinite(tmin)
-    tmin[empty] = tmax[empty] = 0.0
-    return np.stack([mx + tmin * ux, my + tmin * uy, mx + tmax * ux, my + tmax * uy], axis=1)
+    return cut_at_extreme_projections(pts, np.concatenate([lab, lab]), n_clusters, mx, my, ux, uy)
 
 
 def finish_clusters(segments: np.ndarray, scan: np.ndarray, valid: np.ndarray, groups: np.ndarray,
