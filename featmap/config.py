@@ -195,6 +195,12 @@ def _deep_copy(data: Any) -> Any:
     return data
 
 
+def yaml_error_line(exc: Exception) -> str:
+    """``":LINE"`` of a YAML syntax error (1-based), or ``""`` when PyYAML does not know it."""
+    mark = getattr(exc, "problem_mark", None)
+    return f":{mark.line + 1}" if mark is not None else ""
+
+
 def read_yaml_mapping(path: str | Path) -> dict[str, Any]:
     """Read a YAML file that must hold a mapping; a one-line ConfigError otherwise."""
     path = Path(path)
@@ -207,9 +213,7 @@ def read_yaml_mapping(path: str | Path) -> dict[str, Any]:
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f":{mark.line + 1}" if mark is not None else ""
-        raise ConfigError(f"{path}{where}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+        raise ConfigError(f"{path}{yaml_error_line(exc)}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
     if data is None:
         return {}
     if not isinstance(data, dict):

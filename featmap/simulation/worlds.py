@@ -266,9 +266,9 @@ def load_world(name_or_file: str | Path) -> World:
         try:
             data = yaml.safe_load(text)
         except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            where = f":{mark.line + 1}" if mark is not None else ""
-            raise WorldError(f"{path}{where}: not valid YAML") from None
+            from featmap.config import yaml_error_line
+
+            raise WorldError(f"{path}{yaml_error_line(exc)}: not valid YAML") from None
     return world_from_dict(data, str(path))
 
 
