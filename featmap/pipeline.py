@@ -255,8 +255,9 @@ class MappingPipeline:
                 write_fused_geojson(out / f"fused_{run.name}.geojson", run.result.segments, run.result.support,
                                     self.dataset.geo_frame, run.name, distinct_scans(run.result.labels, table.scan,
                                                                                      len(run.result)))
-        self._write_trajectory(out / "trajectory.csv")
-        self._write_maps(out, table, runs, truth)
+        poses = self.dataset.poses()
+        self._write_trajectory(out / "trajectory.csv", poses)
+        self._write_maps(out, table, runs, truth, poses[:, :2, 3])
         save_config(self.config, out / "config.yaml")
         write_seconds = time.perf_counter() - t_write
         scan_s = np.asarray(self.stats.scan_seconds)
@@ -293,12 +294,11 @@ class MappingPipeline:
         self.report(metrics)
         return metrics
 
-    def _write_maps(self, out: Path, table: SegmentTable, runs: list[MethodRun], truth) -> None:
+    def _write_maps(self, out: Path, table: SegmentTable, runs: list[MethodRun], truth, traj: np.ndarray) -> None:
         """GeoJSON of segments/trajectory/truth, KML, the interactive HTML map and an overview plot."""
         from featmap.io.geojson import write_segments_geojson
 
         frame = self.dataset.geo_frame
-        traj = self.dataset.poses()[:, :2, 3]
         cfg = self.config.output
         layers = {r.name: (r.result.segments, r.result.support) for r in runs}
         if cfg.geojson:
@@ -323,8 +323,7 @@ class MappingPipeline:
 
             overview_plot(out / "map_overview.png", layers, frame, traj, truth, cfg)
 
-    def _write_trajectory(self, path: Path) -> None:
-        poses = self.dataset.poses()
+    def _write_trajectory(self, path: Path, poses: np.ndarray) -> None:
         lines = ["frame,x,y,z,yaw"]
         for frame, T in zip(self.dataset.frames, poses):
             yaw = np.arctan2(T[1, 0], T[0, 0])
