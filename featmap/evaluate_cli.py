@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from featmap.errors import FeatmapError, InputFileError
 from featmap.evaluation import compute_metrics, load_truth, truth_from_footprints
 from featmap.geo import GeoFrame
+from featmap.io.jsonfile import read_json
 
 
 def _frame_for_csv(fused: Path, origin: str | None) -> GeoFrame | None:
@@ -19,7 +19,7 @@ def _frame_for_csv(fused: Path, origin: str | None) -> GeoFrame | None:
         return GeoFrame(lat, lon)
     metrics = fused.parent / "metrics.json"
     if metrics.exists():
-        return GeoFrame(**json.loads(metrics.read_text())["geo_frame"])
+        return GeoFrame(**read_json(metrics)["geo_frame"])
     return None
 
 
@@ -32,7 +32,7 @@ def evaluate_file(fused: Path, truth: Path, origin: str | None = None) -> dict:
     if not truth.exists():
         raise InputFileError(truth, "ground truth not found")
     if fused.suffix.lower() in (".geojson", ".json"):
-        frame = first_position(truth) if truth.is_file() else GeoFrame(**json.loads((truth / "simulation.json").read_text())["geo_origin"])
+        frame = first_position(truth) if truth.is_file() else GeoFrame(**read_json(truth / "simulation.json")["geo_origin"])
         segments, _ = read_segments_geojson(fused, frame)
     else:
         frame = _frame_for_csv(fused, origin)

@@ -12,7 +12,6 @@ observation record, so there every wall counts as observable over its whole leng
 from __future__ import annotations
 
 import csv
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -78,7 +77,9 @@ def load_truth(truth_dir: str | Path, frame: GeoFrame | None = None, frames: lis
         frames: count only what these frames observed (default: the whole drive).
     """
     truth_dir = Path(truth_dir)
-    sim = json.loads((truth_dir / "simulation.json").read_text())
+    from featmap.io.jsonfile import read_json
+
+    sim = read_json(truth_dir / "simulation.json", "not found: not a simulated drive's truth/ folder")
     src = GeoFrame(**sim["geo_origin"])
     rows = list(csv.DictReader(open(truth_dir / "walls.csv", newline="")))
     walls = np.array([[float(r[c]) for c in ("x1", "y1", "x2", "y2")] for r in rows]).reshape(-1, 4)
@@ -90,7 +91,7 @@ def load_truth(truth_dir: str | Path, frame: GeoFrame | None = None, frames: lis
     n_returns = np.array([int(r["n_returns"]) for r in rows])
     if frames is not None and (truth_dir / "coverage.npz").exists():
         observed, n_returns = _coverage_of_frames(truth_dir / "coverage.npz", walls, frames)
-    objects = json.loads((truth_dir / "objects_local.json").read_text())["objects"]
+    objects = read_json(truth_dir / "objects_local.json")["objects"]
     other, poles = [], []
     for obj in objects:
         geom = obj["geometry"]

@@ -161,10 +161,7 @@ def expand(spec: SweepSpec, base: dict, source: str = "sweep") -> tuple[list[Com
     configs = {}
     for combo in combos:
         overrides = [f"{k}={json.dumps(v)}" for k, v in combo.params.items()]
-        try:
-            configs[combo.key] = config_from_dict(apply_overrides(base, overrides), f"{source} ({combo.method} {combo.params})")
-        except ConfigError as exc:
-            raise ConfigError(str(exc).replace("config_from_dict", "")) from None
+        configs[combo.key] = config_from_dict(apply_overrides(base, overrides), f"{source} ({combo.method} {combo.params})")
     return combos, configs
 
 
@@ -269,12 +266,13 @@ def _load_inputs(spec: SweepSpec, spec_path: Path):
     """(segments (N, 4), scan (N,), truth or None, geo frame or None) for a sweep."""
     from featmap.evaluation import load_truth, truth_from_footprints
     from featmap.geo import GeoFrame
+    from featmap.io.jsonfile import read_json
     from featmap.io.segments_csv import read_segments_csv
 
     if spec.input is not None:
         table = read_segments_csv(spec.input)
         meta_path = Path(spec.input).parent / "metrics.json"
-        meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
+        meta = read_json(meta_path) if meta_path.exists() else {}
         frame = GeoFrame(**meta["geo_frame"]) if "geo_frame" in meta else None
         truth_path = spec.truth or meta.get("ground_truth")
         truth = None
