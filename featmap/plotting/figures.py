@@ -155,9 +155,9 @@ def fig_corner_optimisation(run: RunData, result, out: Path) -> Path:
 def fig_global_map(run: RunData, out: Path) -> Path:
     fig, axes = _figure(1, 2, size=(16, 8))
     draw_segments(axes[0], run.segments.segments, SEGMENT_COLOR, lw=0.6, label=f"extracted segments ({len(run.segments)})")
-    fused = run.fused.get("proposed", next(iter(run.fused.items()))[1] if run.fused else (np.zeros((0, 4)), None))
-    name = "proposed" if "proposed" in run.fused else next(iter(run.fused), "proposed")
-    draw_method(axes[1], name, fused[0])
+    name = "proposed" if "proposed" in run.fused else next(iter(run.fused), None)
+    if name is not None:
+        draw_method(axes[1], name, run.fused[name][0])
     for ax, title in ((axes[0], "Fig. 8a: global map before fusion"), (axes[1], "Fig. 8b: global map after fusion")):
         if len(run.trajectory):
             ax.plot(run.trajectory[:, 0], run.trajectory[:, 1], "-", color="m", lw=0.8, label="trajectory")
@@ -250,6 +250,8 @@ def fig_tile_overlays(run: RunData, results: dict, centres: np.ndarray, out: Pat
 
 
 def fig_truth_comparison(run: RunData, results: dict, out: Path) -> Path | None:
+    from matplotlib.patches import Rectangle
+
     truth = run.truth
     if truth is None:
         return None
@@ -270,7 +272,7 @@ def fig_truth_comparison(run: RunData, results: dict, out: Path) -> Path | None:
         draw_method(main, name, results[name].segments, lw=1.5, linestyles=LINESTYLES.get(name, "-"))
     for lab, p in vertices:
         main.annotate(lab, p, fontsize=14, fontweight="bold", xytext=(6, 6), textcoords="offset points")
-        main.add_patch(__import__("matplotlib.patches", fromlist=["Rectangle"]).Rectangle(p - 1.5, 3, 3, fill=False, ec="g", lw=1.5))
+        main.add_patch(Rectangle(p - 1.5, 3, 3, fill=False, ec="g", lw=1.5))
     if len(truth.walls):
         w = truth.walls.reshape(-1, 2)
         lo, hi = w.min(0), w.max(0)
