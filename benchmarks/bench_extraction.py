@@ -17,11 +17,10 @@ import time
 from rich.console import Console
 from rich.table import Table
 
-from featmap.cli import ensure_default_drive
-from featmap.config import load_config
-from featmap.datasets import KittiRawDataset, parse_frames
-from featmap.extraction import extract_segments
-from featmap.pipeline import MappingPipeline
+from featmap.datasets import SourceSpec, open_source
+from featmap.extraction.ransac_planes import extract_segments
+from featmap.pipeline import SegmentStore, load_config, local_executor
+from featmap.pipeline.extract import extract_source
 
 
 def main() -> None:
@@ -31,18 +30,18 @@ def main() -> None:
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     args = parser.parse_args()
     config = load_config(None, args.overrides)
-    data_dir, drive = ensure_default_drive()
-    ds = KittiRawDataset(data_dir, drive, parse_frames(args.frames))
+    ds = open_source(SourceSpec("simulated", "residential", args.frames))
+    section = config.extraction.ransac_planes
     console = Console()
 
     items = [ds[i] for i in range(len(ds))]
-    extract_segments(items[0].points, config.extraction)          # warm-up (imports, first allocation)
+    extract_segments(items[0].points, section)          # warm-up (imports, first allocation)
     per_stage: dict[str, list[float]] = {}
     totals, counts, points = [], [], []
     for item in items:
         timings: dict[str, float] = {}
         start = time.perf_counter()
-        result = extract_segments(item.points, config.extraction, timings)
+        result = extract_segments(item.points, section, timings)
         totals.append(time.perf_counter() - start)
         counts.append(len(result))
         points.append(len(item.points))
@@ -61,10 +60,9 @@ def main() -> None:
     for col in ("workers", "scans", "seconds", "scans/s"):
         table.add_column(col, justify="right")
     for workers in args.workers:
-        with tempfile.TemporaryDirectory() as tmp:
-            pipe = MappingPipeline(ds, config, tmp, [], workers=workers, cache_dir=tmp)
+        with tempfile.TemporaryDirectory() as tmp, local_executor(workers) as executor:
             start = time.perf_counter()
-            pipe.extract()
+            extract_source(ds, config.extraction, SegmentStore(tmp), executor)
             sec = time.perf_counter() - start
         table.add_row(str(workers), str(len(ds)), f"{sec:.1f}", f"{len(ds) / sec:.1f}")
     console.print(table)

@@ -19,9 +19,8 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from featmap.config import FeatmapConfig
-from featmap.fusion import FUSION_METHODS, fuse
-from featmap.synthetic import city_walls, observe_walls
+from featmap.fusion import FUSION_METHODS, FusionConfig, fuse
+from featmap.simulation.segments import city_walls, observe_walls
 
 
 def make_map(n_segments: int, seed: int = 0):
@@ -39,7 +38,7 @@ def main() -> None:
     parser.add_argument("--meanshift-max", type=int, default=100_000,
                         help="skip meanshift above this N (it needs ~8 min per run at 1M on 2 cores)")
     args = parser.parse_args()
-    config = FeatmapConfig()
+    config = FusionConfig()
     table = Table(title="featmap fusion benchmark (median seconds, peak traced MiB)")
     for col in ("method", "N segments", "features out", "median s", "s per 100k", "peak MiB"):
         table.add_column(col, justify="right")

@@ -17,6 +17,7 @@ import yaml
 from rich.console import Console
 from rich.table import Table
 
+from featmap.pipeline import local_executor
 from featmap.sweep import run_sweep_file
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,10 +37,11 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "sweep.yaml"
         path.write_text(yaml.safe_dump(spec))
-        run_sweep_file(path, Path(tmp) / "warmup", workers=1)          # extraction cache, imports
+        run_sweep_file(path, Path(tmp) / "warmup")          # extraction cache, imports
         for workers in args.workers:
             start = time.perf_counter()
-            rows, _ = run_sweep_file(path, Path(tmp) / f"w{workers}", workers=workers)
+            with local_executor(workers) as executor:
+                rows, _ = run_sweep_file(path, Path(tmp) / f"w{workers}", executor)
             table.add_row(str(workers), str(len(rows)), f"{time.perf_counter() - start:.1f}")
     Console().print(table)
 

@@ -1,14 +1,16 @@
 """The ``featmap`` command line: one thin function per command.
 
-Commands only parse flags, build the pieces and call into the library; heavy libraries (Open3D,
-pykitti, matplotlib, scikit-learn) are imported inside the commands so ``featmap --help`` is instant.
-Known errors (:class:`featmap.errors.FeatmapError`) print as one line and exit with status 2.
+Commands only parse flags, build the pieces (config, scan source, segment store, executor, reporter)
+and call into the library; heavy libraries (Open3D, pykitti, matplotlib, scikit-learn) are imported
+inside the commands so ``featmap --help`` is instant. Known errors (:class:`featmap.errors.FeatmapError`)
+print as one line and exit with status 2.
 """
 
 from __future__ import annotations
 
 import functools
 import sys
+import warnings
 from pathlib import Path
 from typing import List, Optional
 
@@ -23,6 +25,8 @@ ConfigOpt = typer.Option(None, "--config", "-c", help="YAML config (defaults < t
                          exists=False, dir_okay=False)
 SetOpt = typer.Option(None, "--set", help="Override one config key, e.g. --set fusion.proposed.delta_deg=5 (repeatable).")
 MethodOpt = typer.Option("all", "--method", "-m", help="proposed, meanshift, density, a comma list, or all.")
+WorkersOpt = typer.Option(2, "--workers", "-j", min=1, help="Local worker processes.")
+CacheOpt = typer.Option(Path("data/cache"), "--cache-dir", help="Content-keyed cache of extracted segments.")
 
 
 @app.callback()
@@ -35,13 +39,23 @@ def _fail(message: str) -> None:
     raise typer.Exit(code=2)
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """featmap's own warnings (e.g. unreachable map tiles) are messages for users: one line each."""
+    if category.__module__.startswith("featmap"):
+        print(f"featmap: warning: {message}", file=sys.stderr)
+    else:
+        print(warnings.formatwarning(message, category, filename, lineno, line), file=sys.stderr, end="")
+
+
 def command(func):
     """Register ``func`` as a command that turns FeatmapError into a one-line message and exit code 2."""
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
         try:
-            return func(*args, **kwargs)
+            with warnings.catch_warnings():
+                warnings.showwarning = _show_warning
+                return func(*args, **kwargs)
         except FeatmapError as exc:
             _fail(str(exc))
         except KeyboardInterrupt:
@@ -49,6 +63,12 @@ def command(func):
             raise typer.Exit(code=130)
 
     return app.command()(wrapper)
+
+
+def _reporter():
+    from featmap.console import RichReporter
+
+    return RichReporter()
 
 
 @command
@@ -60,84 +80,108 @@ def fuse(
     set_: Optional[List[str]] = SetOpt,
 ):
     """Fuse the segments of a segments.csv with one or more methods."""
-    from featmap.config import load_config
-    from featmap.fusion.registry import resolve_methods
+    from featmap.fusion import resolve_methods
     from featmap.io.segments_csv import read_segments_csv
-    from featmap.pipeline import fuse_and_write
+    from featmap.pipeline.config import load_config
+    from featmap.pipeline.fuse import fuse_and_write
 
     cfg = load_config(config, set_ or [])
     methods = resolve_methods(method)
     table = read_segments_csv(segments_csv)
-    fuse_and_write(table, methods, cfg, out)
+    fuse_and_write(table, methods, cfg, out, _reporter())
 
 
-def ensure_default_drive():
-    """The embedded default drive (simulated on first use); see :mod:`featmap.simulation.default`."""
-    from featmap.simulation.default import ensure_default_drive as ensure
+def source_spec(drive: str | None, data_dir: Path, world: str | None, dataset: str | None, source: str | None,
+                frames: str | None, skip_bad_scans: bool):
+    """The scan source the flags of ``featmap run`` name (the embedded simulated drive by default)."""
+    from featmap.datasets import SourceSpec
+    from featmap.datasets.kitti_raw import drive_folder
 
-    return ensure(echo=typer.echo)
+    given = [flag for flag, value in (("--drive", drive), ("--world", world), ("--dataset", dataset)) if value]
+    if len(given) > 1:
+        _fail(f"{' and '.join(given)}: give one source")
+    if dataset is not None:
+        if source is None:
+            _fail(f"--dataset {dataset}: give its --source LOCATION")
+        return SourceSpec(dataset, source, frames, skip_bad_scans)
+    if source is not None:
+        _fail("--source: give --dataset NAME with it")
+    if drive is not None:
+        return SourceSpec("kitti_raw", str(drive_folder(data_dir, drive)), frames, skip_bad_scans)
+    return SourceSpec("simulated", world or "residential", frames, skip_bad_scans)
 
 
 @command
 def run(
-    drive: Optional[str] = typer.Option(None, "--drive", "-d", help="KITTI raw drive YYYY_MM_DD_drive_NNNN (default: the embedded simulated drive)."),
+    drive: Optional[str] = typer.Option(None, "--drive", "-d", help="KITTI raw drive YYYY_MM_DD_drive_NNNN (with --data-dir)."),
     data_dir: Path = typer.Option(Path("data/kitti"), "--data-dir", help="KITTI raw root holding YYYY_MM_DD/ folders."),
+    world: Optional[str] = typer.Option(None, "--world", "-w", help="A simulated world (built-in name or file), simulated on first use; the default is residential."),
+    dataset: Optional[str] = typer.Option(None, "--dataset", help="Any registered scan format (see featmap datasets), with --source."),
+    source: Optional[str] = typer.Option(None, "--source", help="Location of the --dataset source (a folder or file)."),
     frames: Optional[str] = typer.Option(None, "--frames", help="start:stop:step selection of frames."),
     method: str = MethodOpt,
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Run folder (default: runs/<drive>)."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Run folder (default: runs/<source name>)."),
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
-    workers: int = typer.Option(2, "--workers", "-j", min=1, help="Extraction processes."),
-    cache_dir: Path = typer.Option(Path("data/cache"), "--cache-dir", help="Per-drive cache of extracted segments."),
+    workers: int = WorkersOpt,
+    cache_dir: Path = CacheOpt,
     skip_bad_scans: bool = typer.Option(False, "--skip-bad-scans", help="Skip unreadable scans instead of failing."),
 ):
-    """Turn a LiDAR drive into fused wall maps (the embedded simulated drive when --drive is not given)."""
-    from featmap.config import load_config
-    from featmap.datasets import KittiRawDataset, parse_frames
-    from featmap.fusion.registry import resolve_methods
-    from featmap.pipeline import MappingPipeline
+    """Turn a scan source into fused wall maps (the embedded simulated drive when no source is given)."""
+    from featmap.datasets import open_source
+    from featmap.fusion import resolve_methods
+    from featmap.pipeline import MappingPipeline, SegmentStore, load_config, local_executor
 
     cfg = load_config(config, set_ or [])
     methods = resolve_methods(method)
-    selection = parse_frames(frames)
-    if drive is None:
-        data_dir, drive = ensure_default_drive()
-        default_out = Path("runs") / "residential"
-    else:
-        default_out = Path("runs") / drive
-    dataset = KittiRawDataset(data_dir, drive, selection, skip_bad_scans=skip_bad_scans)
-    MappingPipeline(dataset, cfg, out or default_out, methods, workers=workers, cache_dir=cache_dir,
-                    skip_bad_scans=skip_bad_scans).run()
+    spec = source_spec(drive, data_dir, world, dataset, source, frames, skip_bad_scans)
+    store = SegmentStore(cache_dir)
+    reporter = _reporter()
+    scan_source = open_source(spec, reporter)
+    with local_executor(workers) as executor:
+        pipeline = MappingPipeline(cfg, methods, store, executor, reporter, skip_bad_scans)
+        pipeline.run(scan_source, out or Path("runs") / scan_source.name)
+
+
+@command
+def datasets():
+    """List the scan formats featmap reads (for run --dataset NAME --source LOCATION)."""
+    from featmap.datasets import DATASETS
+
+    for fmt in DATASETS.values():
+        typer.echo(f"{fmt.name:>12s}  {fmt.location_help}")
 
 
 @command
 def sweep(
     sweep_file: Path = typer.Argument(..., help="Sweep YAML (base, input or drive, methods, grid, samples)."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Output folder (default: runs/sweeps/<file stem>)."),
-    workers: int = typer.Option(2, "--workers", "-j", min=1, help="Processes evaluating combinations."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+    workers: int = WorkersOpt,
+    cache_dir: Path = CacheOpt,
 ):
     """Sweep fusion parameters on cached segments: sweep.csv, heatmaps, curves, Pareto plot, best.yaml."""
-    from rich.console import Console
-    from rich.table import Table
-
-    from featmap.progress import track
+    from featmap.pipeline import local_executor
     from featmap.sweep import load_sweep, run_sweep_file
 
     spec = load_sweep(sweep_file)
     out = out or Path("runs") / "sweeps" / Path(sweep_file).stem
-    rows, best = run_sweep_file(sweep_file, out, workers, progress=lambda it, n: track(it, n, "sweeping"))
-    table = Table(title=f"featmap sweep: {len(rows)} combinations")
-    for col in ("method", "combinations", "best " + spec.select.metric, "count at best"):
-        table.add_column(col, justify="right")
+    reporter = _reporter()
+    with local_executor(workers) as executor:
+        rows, best = run_sweep_file(sweep_file, out, executor, reporter, config, set_ or [], cache_dir)
+    metric = spec.select.metric
+    table = []
     for method in spec.methods:
-        sub = [r for r in rows if r["method"] == method and r.get(spec.select.metric) is not None]
+        sub = [r for r in rows if r["method"] == method and r.get(metric) is not None]
         if sub:
-            b = (max if spec.select.goal == "max" else min)(sub, key=lambda r: r[spec.select.metric])
-            table.add_row(method, str(len(sub)), f"{b[spec.select.metric]:.4f}", str(b["count"]))
+            b = (max if spec.select.goal == "max" else min)(sub, key=lambda r: r[metric])
+            table.append([method, str(len(sub)), f"{b[metric]:.4f}", str(b["count"])])
         else:
-            table.add_row(method, str(len([r for r in rows if r["method"] == method])), "-", "-")
-    Console().print(table)
-    typer.echo(f"wrote sweep.csv, plots{', best.yaml' if best else ''} to {out}")
+            table.append([method, str(len([r for r in rows if r["method"] == method])), "-", "-"])
+    reporter.table(f"featmap sweep: {len(rows)} combinations", ["method", "combinations", "best " + metric,
+                                                                  "count at best"], table)
+    reporter.info(f"wrote sweep.csv, plots{', best.yaml' if best else ''} to {out}")
 
 
 @command
@@ -145,30 +189,55 @@ def figures(
     run_dir: Path = typer.Argument(..., help="A featmap run folder."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Output folder (default: RUN_DIR/figures)."),
     tiles: Optional[str] = typer.Option(None, "--tiles", help="Tile source for Fig. 11: xyzservices name or {z}/{x}/{y} URL."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
 ):
-    """Write the paper's figures (2-3, 6-11, 13-14) and Tables 1-3 for one run."""
-    from featmap.io.run_folder import load_run
-    from featmap.plotting.figures import make_figures
+    """Write the paper's figures (2-3, 6-11, 13-14) for one run (its Tables 1-3: featmap compare)."""
+    from featmap.config import read_yaml_mapping
+    from featmap.outputs import tiles_of
+    from featmap.pipeline.config import config_from_dict, load_config
+    from featmap.pipeline.run_folder import load_run
+    from featmap.plotting.figures import FigureInputs, make_figures
 
-    run_data = load_run(run_dir)
-    if tiles is not None:
-        import dataclasses
+    cfg = None
+    if config is not None or set_ or tiles is not None:   # the run's own config, changed where asked
+        from featmap.config import apply_overrides
+        from featmap.pipeline.config import FeatmapConfig
 
-        cfg = run_data.config.model_copy(update={"output": run_data.config.output.model_copy(update={"tile_source": tiles})})
-        run_data = dataclasses.replace(run_data, config=cfg)
-    paths = make_figures(run_data, out or Path(run_dir) / "figures")
-    for p in paths:
+        base = read_yaml_mapping(config) if config is not None else load_config(run_dir / "config.yaml").model_dump(mode="json")
+        overrides = list(set_ or []) + ([f"output.tile_source={tiles}"] if tiles is not None else [])
+        cfg = config_from_dict(apply_overrides(base, overrides, FeatmapConfig), str(config or run_dir / "config.yaml"))
+    run_data = load_run(run_dir, cfg)
+    inputs = FigureInputs(segments=run_data.segments, methods=list(run_data.fused), fusion=run_data.config.fusion,
+                          trajectory=run_data.trajectory, frame=run_data.frame, truth=run_data.truth,
+                          tiles=tiles_of(run_data.config.output))
+    for p in make_figures(inputs, out or Path(run_dir) / "figures"):
         typer.echo(f"wrote {p}")
 
 
 @command
 def compare(run_dir: Path = typer.Argument(..., help="A featmap run folder (with metrics.json).")):
     """Write comparison.csv and comparison.md (the paper's Tables 1-3 for one run) and print them."""
-    from featmap.compare import write_comparison
+    from featmap.io.run_metrics import read_run_metrics
+    from featmap.outputs import write_comparison
 
-    _, md = write_comparison(run_dir)
+    _, md = write_comparison(read_run_metrics(run_dir / "metrics.json"), run_dir)
     typer.echo(md)
     typer.echo(f"wrote {run_dir / 'comparison.csv'} and {run_dir / 'comparison.md'}")
+
+
+@command
+def config(
+    config_file: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+):
+    """Print the configuration (the commented defaults, or a file with --set overrides, resolved)."""
+    from featmap.pipeline.config import default_config_yaml, load_config
+
+    if config_file is None and not set_:
+        typer.echo(default_config_yaml(), nl=False)
+    else:
+        typer.echo(load_config(config_file, set_ or []).to_yaml(), nl=False)
 
 
 @command
@@ -182,8 +251,8 @@ def download(
     """Download a KITTI raw drive and its calibration (resumable, verified) into the raw layout."""
     from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
 
+    from featmap.datasets.kitti_download import download_drive
     from featmap.datasets.kitti_raw import parse_drive
-    from featmap.download import download_drive
 
     parse_drive(drive)
     with Progress(TextColumn("{task.description}"), BarColumn(), DownloadColumn(), TransferSpeedColumn()) as bar:
@@ -205,13 +274,19 @@ def evaluate(
     """Score any fused map against ground-truth footprints (the metrics of EVALUATION.md)."""
     import json
 
-    from featmap.evaluate_cli import evaluate_file
+    from featmap.evaluation.score_files import evaluate_file
+    from featmap.pipeline.run_folder import RunFolderError
 
     metrics = evaluate_file(fused, truth, origin)
     if out is not None:
         from featmap.io.atomic import atomic_write_text
 
-        atomic_write_text(out, json.dumps(metrics, indent=1))
+        if out.is_dir():
+            raise RunFolderError(f"--out {out}: is a folder; give a .json file path")
+        try:
+            atomic_write_text(out, json.dumps(metrics, indent=1))
+        except OSError as exc:
+            raise RunFolderError(f"--out {out}: cannot write ({exc.strerror})") from None
     for key, value in metrics.items():
         typer.echo(f"{key:>20s}  {value}")
 
@@ -239,7 +314,7 @@ def simulate(
     """Ray-cast a LiDAR drive through a world and write it in the KITTI raw layout with ground truth."""
     import time
 
-    from featmap.progress import track
+    from featmap.reporting import track
     from featmap.simulation.sensors import SENSORS
     from featmap.simulation.simulate import simulate_drive
     from featmap.simulation.worlds import load_world
@@ -248,10 +323,13 @@ def simulate(
         _fail(f"--sensor {sensor!r}: allowed: {', '.join(SENSORS)}")
     if not (len(drive_id) == 4 and drive_id.isdigit()):
         _fail(f"--drive-id {drive_id!r}: expected four digits, e.g. 0001")
+    if out.exists() and not out.is_dir():
+        _fail(f"--out {out}: exists and is not a folder")
     w = load_world(world)
+    reporter = _reporter()
     start = time.perf_counter()
     drive = simulate_drive(w, out, SENSORS[sensor], frames, noise, dropout, _parse_pose_noise(pose_noise), seed,
-                           drive_id, progress=lambda it, n: track(it, n, f"simulating {w.name}"))
+                           drive_id, progress=lambda it, n: track(reporter, it, n, f"simulating {w.name}"))
     seconds = time.perf_counter() - start
     typer.echo(f"wrote {drive.n_frames} frames of {w.name} ({sensor}) to {drive.drive_dir} "
                f"in {seconds:.1f} s ({drive.n_frames / seconds:.1f} frames/s); ground truth in "
@@ -259,17 +337,6 @@ def simulate(
 
 
 def main() -> None:
-    import warnings
-
-    _format = warnings.formatwarning
-
-    def one_line(message, category, filename, lineno, line=None):
-        # featmap's own warnings (e.g. unreachable map tiles) are messages for users, not code locations
-        if category.__module__.startswith("featmap"):
-            return f"featmap: warning: {message}\n"
-        return _format(message, category, filename, lineno, line)
-
-    warnings.formatwarning = one_line
     app(prog_name="featmap")
 
 

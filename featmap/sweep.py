@@ -2,9 +2,11 @@
 
 A sweep file::
 
-    base: configs/default.yaml            # optional
-    input: runs/residential/segments.csv  # or: drive: 2011_09_30_drive_0018 (+ data_dir, frames); drive: default
-    truth: path/to/truth_or_footprints    # optional; found automatically next to a run's segments.csv
+    base: configs/default.yaml            # optional (the command's --config/--set apply on top of it)
+    input: runs/residential/segments.csv  # a run's segments (its metrics.json gives the reference), or
+    drive: default                        # a source: default (the simulated residential drive),
+    #   drive: 2011_09_30_drive_0018 (+ data_dir, frames), or dataset: NAME + location: PATH
+    truth: path/to/truth_or_footprints    # optional; found from the run's metrics.json otherwise
     methods: [proposed, meanshift]
     grid:
       fusion.proposed.delta_deg: [2, 5, 10]
@@ -17,7 +19,8 @@ A sweep file::
 Each method is swept over the keys of its own section (``fusion.<method>.*``) and the shared
 ``fusion.corners.*``; other methods' keys stay at the base value for it. Every combination is
 validated before anything runs. Results are appended to ``results.jsonl`` as they finish, so an
-interrupted sweep resumes where it stopped.
+interrupted sweep resumes where it stopped; the file starts with the sweep's identity (the input's
+content and the resolved base config), and a sweep of other inputs into the same folder is refused.
 
 ``quality`` = F1(precision, recall) / max(1, count_ratio): accurate *and* concise.
 """
@@ -36,12 +39,17 @@ from typing import Any, Literal, Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from featmap.config import FeatmapConfig, _valid_keys, apply_overrides, closest_key, config_from_dict, read_yaml_mapping
+from featmap.config import apply_overrides, closest_key, leaf_keys, read_yaml_mapping
 from featmap.errors import ConfigError, FeatmapError
-from featmap.fusion.registry import FUSION_METHODS
+from featmap.evaluation import Evaluator, Reference
+from featmap.fusion import FUSION_METHODS, fuse
+from featmap.pipeline.config import FeatmapConfig, config_from_dict
+from featmap.pipeline.executor import Executor, SerialExecutor
+from featmap.reporting import NullReporter, Reporter, track
 
 METRICS = ("count", "count_ratio", "precision", "precision_any", "recall", "redundancy", "offset_cm",
            "corner_err_cm", "f1", "quality", "seconds")
+MAX_COMBINATIONS = 100_000
 
 
 class Range(BaseModel):
@@ -57,6 +65,10 @@ class Range(BaseModel):
             raise ValueError(f"stop {self.stop} < start {self.start}")
         if (self.num is None) == (self.step is None):
             raise ValueError("give exactly one of num or step")
+        if self.step is not None and (self.stop - self.start) / self.step > MAX_COMBINATIONS:
+            raise ValueError(f"{(self.stop - self.start) / self.step:.0f} values; at most {MAX_COMBINATIONS}")
+        if self.num is not None and self.num > MAX_COMBINATIONS:
+            raise ValueError(f"num {self.num}; at most {MAX_COMBINATIONS}")
         return self
 
     def values(self) -> list[float]:
@@ -78,6 +90,8 @@ class SweepSpec(BaseModel):
     input: Optional[str] = None
     drive: Optional[str] = None
     data_dir: str = "data/kitti"
+    dataset: Optional[str] = None
+    location: Optional[str] = None
     frames: Optional[str] = None
     truth: Optional[str] = None
     methods: list[str] = ["proposed"]
@@ -88,8 +102,11 @@ class SweepSpec(BaseModel):
 
     @model_validator(mode="after")
     def _check(self):
-        if (self.input is None) == (self.drive is None):
-            raise ValueError("give exactly one of 'input' (a segments.csv) or 'drive'")
+        given = [k for k in ("input", "drive", "dataset") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError("give exactly one of 'input' (a segments.csv), 'drive' or 'dataset' (+ 'location')")
+        if self.dataset is not None and self.location is None:
+            raise ValueError("'dataset' needs a 'location'")
         if not self.grid:
             raise ValueError("the grid is empty")
         for key, val in list(self.grid.items()):
@@ -134,11 +151,11 @@ def load_sweep(path: str | Path) -> SweepSpec:
 
 def expand(spec: SweepSpec, base: dict, source: str = "sweep") -> tuple[list[Combination], dict[str, FeatmapConfig]]:
     """Validate keys, values and every combination; return the combinations and their configs."""
-    leaves = {k for k in _valid_keys(FeatmapConfig) if k.count(".") >= 1}
+    leaves = set(leaf_keys(FeatmapConfig))
     values: dict[str, list] = {}
     for key, val in spec.grid.items():
         if key not in leaves:
-            hint = closest_key(key)
+            hint = closest_key(key, FeatmapConfig)
             raise ConfigError(f"{source}: grid key '{key}' does not exist" + (f"; did you mean '{hint}'?" if hint else ""))
         if not key.startswith("fusion."):
             raise ConfigError(f"{source}: grid key '{key}': a sweep re-fuses cached segments and never re-extracts; "
@@ -150,18 +167,36 @@ def expand(spec: SweepSpec, base: dict, source: str = "sweep") -> tuple[list[Com
     for name in spec.methods:
         if name not in FUSION_METHODS:
             raise ConfigError(f"{source}: unknown method '{name}'; allowed: {', '.join(FUSION_METHODS)}")
+    keys_of = {name: [k for k in values if k.startswith(f"fusion.{name}.") or k.startswith("fusion.corners.")]
+               for name in spec.methods}
+    total = sum(math.prod(len(values[k]) for k in keys) for keys in keys_of.values())
+    limit = spec.samples or MAX_COMBINATIONS
+    if total > MAX_COMBINATIONS and not spec.samples:
+        raise ConfigError(f"{source}: the grid has {total:,} combinations (more than {MAX_COMBINATIONS:,}); "
+                          "use 'samples: N' for a random search or fewer values")
     combos: list[Combination] = []
-    for name in spec.methods:
-        keys = [k for k in values if k.startswith(f"fusion.{name}.") or k.startswith("fusion.corners.")]
-        grid = [dict(zip(keys, v)) for v in itertools.product(*(values[k] for k in keys))] if keys else [{}]
-        combos += [Combination(name, params) for params in grid]
-    if spec.samples and spec.samples < len(combos):
+    if total <= MAX_COMBINATIONS:
+        for name in spec.methods:
+            keys = keys_of[name]
+            grid = [dict(zip(keys, v)) for v in itertools.product(*(values[k] for k in keys))] if keys else [{}]
+            combos += [Combination(name, params) for params in grid]
+        if spec.samples and spec.samples < len(combos):
+            rng = np.random.default_rng(spec.seed)
+            combos = [combos[i] for i in sorted(rng.choice(len(combos), spec.samples, replace=False))]
+    else:   # a huge grid sampled without expanding it
         rng = np.random.default_rng(spec.seed)
-        combos = [combos[i] for i in sorted(rng.choice(len(combos), spec.samples, replace=False))]
+        seen: dict[str, Combination] = {}
+        weights = np.array([math.prod(len(values[k]) for k in keys_of[n]) for n in spec.methods], float)
+        while len(seen) < limit:
+            name = spec.methods[int(rng.choice(len(spec.methods), p=weights / weights.sum()))]
+            combo = Combination(name, {k: values[k][int(rng.integers(len(values[k])))] for k in keys_of[name]})
+            seen.setdefault(combo.key, combo)
+        combos = list(seen.values())
     configs = {}
     for combo in combos:
         overrides = [f"{k}={json.dumps(v)}" for k, v in combo.params.items()]
-        configs[combo.key] = config_from_dict(apply_overrides(base, overrides), f"{source} ({combo.method} {combo.params})")
+        configs[combo.key] = config_from_dict(apply_overrides(base, overrides, FeatmapConfig),
+                                              f"{source} ({combo.method} {combo.params})")
     return combos, configs
 
 
@@ -172,73 +207,75 @@ def _score(metrics: dict) -> dict:
     return {**metrics, "f1": f1, "quality": quality}
 
 
-_STATE: dict = {}
+@dataclass(frozen=True)
+class SweepInputs:
+    """What every combination is evaluated on: world-frame segments (N, 4), their scans (N,), and the
+    reference (an evaluator with its prepared reference) or None."""
+
+    segments: np.ndarray
+    scan: np.ndarray
+    reference: tuple[Evaluator, Reference] | None
+    digest: str
 
 
-def _init(segments, scan, truth) -> None:
-    _STATE.update(segments=segments, scan=scan, truth=truth)
-
-
-def _evaluate(args: tuple[str, str, dict]) -> tuple[str, dict]:
-    from featmap.evaluation import compute_metrics
-    from featmap.fusion import fuse
-
-    key, method, config_dict = args
+def _evaluate(task: tuple[SweepInputs, str, str, dict]) -> tuple[str, dict]:
+    """Executor task: fuse the inputs with one combination and score it."""
+    inputs, key, method, config_dict = task
     config = FeatmapConfig.model_validate(config_dict)
     start = time.perf_counter()
-    result = fuse(method, _STATE["segments"], _STATE["scan"], config)
+    result = fuse(method, inputs.segments, inputs.scan, config.fusion)
     seconds = time.perf_counter() - start
-    metrics = {"count": len(result)}
-    if _STATE["truth"] is not None:
-        metrics.update({k: v for k, v in compute_metrics(result.segments, _STATE["truth"]).items()
-                        if k in METRICS})
+    metrics: dict = {"count": len(result)}
+    if inputs.reference is not None:
+        evaluator, reference = inputs.reference
+        metrics.update({k: v for k, v in evaluator.score(reference, result.segments).items() if k in METRICS})
     return key, {**_score(metrics), "seconds": seconds}
 
 
-def run_sweep(combos: list[Combination], configs: dict[str, FeatmapConfig], segments, scan, truth,
-              out: Path, workers: int = 2, progress=None) -> list[dict]:
+def _read_log(log: Path, identity: dict, out: Path) -> dict[str, dict]:
+    """Finished rows of an interrupted sweep (``results.jsonl``); another sweep's log is refused."""
+    done: dict[str, dict] = {}
+    lines = log.read_text().splitlines()
+    try:
+        header = json.loads(lines[0]) if lines else None
+    except json.JSONDecodeError:
+        header = None
+    if not isinstance(header, dict) or header.get("sweep") != identity:
+        raise ConfigError(f"--out {out}: holds the results of another sweep (other input, base config or version); "
+                          "choose another --out or delete it")
+    broken = False
+    for line in lines[1:]:
+        try:
+            row = json.loads(line)
+            done[row["key"]] = row
+        except (json.JSONDecodeError, KeyError, TypeError):
+            broken = True       # a line cut short by an interruption
+    if broken:
+        from featmap.io.atomic import atomic_write_text
+
+        atomic_write_text(log, "".join(json.dumps(r) + "\n" for r in [header, *done.values()]))
+    return done
+
+
+def run_sweep(combos: list[Combination], configs: dict[str, FeatmapConfig], inputs: SweepInputs, out: Path,
+              identity: dict, executor: Executor = SerialExecutor(), reporter: Reporter = NullReporter()) -> list[dict]:
     """Evaluate every combination (resuming from ``out/results.jsonl``); returns one row per combination."""
     out.mkdir(parents=True, exist_ok=True)
     log = out / "results.jsonl"
-    done: dict[str, dict] = {}
-    if log.exists():
-        broken = False
-        for line in log.read_text().splitlines():
-            try:
-                row = json.loads(line)
-                done[row["key"]] = row
-            except (json.JSONDecodeError, KeyError):
-                broken = True       # a line cut short by an interruption
-        if broken:
-            from featmap.io.atomic import atomic_write_text
-
-            atomic_write_text(log, "".join(json.dumps(r) + "\n" for r in done.values()))
+    done = _read_log(log, identity, out) if log.exists() else {}
+    if not log.exists():
+        log.write_text(json.dumps({"sweep": identity}) + "\n")
     todo = [c for c in combos if c.key not in done]
     by_key = {c.key: c for c in combos}
-    jobs = [(c.key, c.method, configs[c.key].model_dump(mode="json")) for c in todo]
-    if jobs:
-        if workers > 1 and len(jobs) > 1:
-            import multiprocessing as mp
-            from concurrent.futures import ProcessPoolExecutor
-
-            pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_init,
-                                       initargs=(segments, scan, truth))
-            results = pool.map(_evaluate, jobs)
-        else:
-            _init(segments, scan, truth)
-            pool, results = None, map(_evaluate, jobs)
-        try:
-            iterator = progress(results, len(jobs)) if progress else results
-            with open(log, "a") as fh:
-                for key, metrics in iterator:
-                    combo = by_key[key]
-                    row = {"key": key, "method": combo.method, **combo.params, **metrics}
-                    fh.write(json.dumps(row) + "\n")
-                    fh.flush()
-                    done[key] = row
-        finally:
-            if pool is not None:
-                pool.shutdown(cancel_futures=True)
+    jobs = ((inputs, c.key, c.method, configs[c.key].model_dump(mode="json")) for c in todo)
+    if todo:
+        with open(log, "a") as fh:
+            for key, metrics in track(reporter, executor.imap(_evaluate, jobs), len(todo), "sweeping"):
+                combo = by_key[key]
+                row = {"key": key, "method": combo.method, **combo.params, **metrics}
+                fh.write(json.dumps(row) + "\n")
+                fh.flush()
+                done[key] = row
     return [done[c.key] for c in combos]
 
 
@@ -249,75 +286,97 @@ def best_row(rows: list[dict], select: Select) -> dict | None:
     return (max if select.goal == "max" else min)(valid, key=lambda r: r[select.metric])
 
 
-def pareto_front(points: np.ndarray) -> np.ndarray:
-    """Indices of the non-dominated points of (K, 2) ``(cost, benefit)``: lower cost, higher benefit."""
-    order = np.lexsort((-points[:, 1], points[:, 0]))
-    front, best = [], -np.inf
-    for i in order:
-        if points[i, 1] > best:
-            front.append(i)
-            best = points[i, 1]
-    return np.asarray(front, dtype=int)
-
-
 # --- the sweep command: inputs, outputs ----------------------------------------------------------------
 
-def _load_inputs(spec: SweepSpec, spec_path: Path):
-    """(segments (N, 4), scan (N,), truth or None, geo frame or None) for a sweep."""
-    from featmap.evaluation import load_truth, truth_from_footprints
-    from featmap.geo import GeoFrame
-    from featmap.io.jsonfile import read_json
+def _digest(*parts: bytes) -> str:
+    h = hashlib.blake2b(digest_size=16)
+    for part in parts:
+        h.update(part)
+    return h.hexdigest()
+
+
+def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor: Executor,
+                reporter: Reporter, cache_dir: str | Path = "data/cache") -> SweepInputs:
+    """The segments, scans and reference a sweep evaluates on."""
+    from featmap.datasets import SourceSpec, open_source
+    from featmap.datasets.kitti_raw import parse_drive
+    from featmap.evaluation import EvaluationContext
+    from featmap.evaluation.plugins import Footprints, SimulatorTruth
+    from featmap.io.run_metrics import read_run_metrics
     from featmap.io.segments_csv import read_segments_csv
+    from featmap.pipeline.extract import extract_source
+    from featmap.pipeline.run import prepare_references
+    from featmap.pipeline.segment_store import SegmentStore
 
     if spec.input is not None:
         table = read_segments_csv(spec.input)
         meta_path = Path(spec.input).parent / "metrics.json"
-        meta = read_json(meta_path) if meta_path.exists() else {}
-        frame = GeoFrame(**meta["geo_frame"]) if "geo_frame" in meta else None
-        truth_path = spec.truth or meta.get("ground_truth")
-        truth = None
-        if truth_path:
-            truth_path = Path(truth_path)
+        meta = read_run_metrics(meta_path) if meta_path.exists() else None
+        frame = meta.geo_frame.frame() if meta is not None and meta.geo_frame is not None else None
+        reference = None
+        truth_path = Path(spec.truth) if spec.truth else None
+        if truth_path is None and meta is not None and meta.primary in ("truth", "footprints"):
+            truth_path = meta.reference_path(meta.primary, meta_path.parent)
+        if truth_path is not None:
             if truth_path.is_dir():
-                truth = load_truth(truth_path, frame, meta.get("frames_processed"))
-            elif frame is None:
-                raise FeatmapError(f"{spec_path}: truth {truth_path} is WGS84 but {spec.input} has no metrics.json "
-                                   "beside it to place it in the local frame")
+                ev = SimulatorTruth()
+                ctx = EvaluationContext(truth_path, meta.source.frames_processed if meta else None, frame,
+                                        base.evaluation)
             else:
-                truth = truth_from_footprints(truth_path, frame)
-        return table.segments, table.scan, truth
-    from featmap.datasets import KittiRawDataset, parse_frames
-    from featmap.pipeline import MappingPipeline
-    from featmap.simulation.default import ensure_default_drive
-
-    if spec.drive == "default":
-        data_dir, drive = ensure_default_drive()
+                if frame is None:
+                    raise FeatmapError(f"{spec_path}: truth {truth_path} is WGS84 but {spec.input} has no metrics.json "
+                                       "with a geo origin beside it to place it in the local frame")
+                ev = Footprints()
+                ctx = EvaluationContext(None, [], frame, base.evaluation.model_copy(update={"footprints": str(truth_path)}))
+            ref = ev.prepare(ctx)
+            if ref is None:
+                raise FeatmapError(f"{spec_path}: truth {truth_path} is not a truth/ folder or a footprints file")
+            reference = (ev, ref)
+        digest = _digest(Path(spec.input).read_bytes(), str(truth_path).encode())
+        return SweepInputs(table.segments, table.scan, reference, digest)
+    if spec.dataset is not None:
+        source_spec = SourceSpec(spec.dataset, spec.location, spec.frames)
+    elif spec.drive == "default":
+        source_spec = SourceSpec("simulated", "residential", spec.frames)
     else:
-        data_dir, drive = Path(spec.data_dir), spec.drive
-    ds = KittiRawDataset(data_dir, drive, parse_frames(spec.frames))
-    base = config_from_dict(read_yaml_mapping(spec.base) if spec.base else {}, spec.base or "defaults")
-    pipe = MappingPipeline(ds, base, spec_path.parent, [], workers=2)
-    table = pipe.extract()
-    truth = load_truth(ds.truth_dir, ds.geo_frame, ds.frames) if ds.truth_dir is not None else None
-    return table.segments, table.scan, truth
+        date, drive_id = parse_drive(spec.drive)
+        source_spec = SourceSpec("kitti_raw", str(Path(spec.data_dir) / date / f"{spec.drive}_sync"), spec.frames)
+    source = open_source(source_spec, reporter)
+    extraction = extract_source(source, base.extraction, SegmentStore(cache_dir), executor, reporter)
+    table = extraction.world_table()
+    ctx = EvaluationContext(source.location, extraction.frames, source.geo_origin, base.evaluation)
+    references = prepare_references(ctx)
+    reference = next(iter(references.values()), None)
+    digest = _digest(table.segments.tobytes(), table.scan.tobytes(), str(reference[1].path if reference else "").encode())
+    return SweepInputs(table.segments, table.scan, reference, digest)
 
 
-def run_sweep_file(spec_path: str | Path, out: str | Path, workers: int = 2, progress=None) -> tuple[list[dict], dict | None]:
-    """Validate, run (resumably), and write ``sweep.csv``, ``best.yaml`` and the plots into ``out``."""
+def run_sweep_file(spec_path: str | Path, out: str | Path, executor: Executor = SerialExecutor(),
+                   reporter: Reporter = NullReporter(), config_path: str | Path | None = None,
+                   overrides: list[str] = (), cache_dir: str | Path = "data/cache") -> tuple[list[dict], dict | None]:
+    """Validate, run (resumably), and write ``sweep.csv``, ``best.yaml`` and the plots into ``out``.
+
+    The base config is the sweep file's ``base``, or ``config_path`` when given, then ``overrides``.
+    """
     import csv
     import io
 
+    from featmap import __version__
     from featmap.io.atomic import atomic_write_text
     from featmap.plotting.sweep_plots import plot_sweep
 
     spec_path = Path(spec_path)
     spec = load_sweep(spec_path)
-    base = read_yaml_mapping(spec.base) if spec.base else {}
-    config_from_dict(base, spec.base or "defaults")
+    base_path = config_path or spec.base
+    base = read_yaml_mapping(base_path) if base_path else {}
+    if overrides:
+        base = apply_overrides(base, overrides, FeatmapConfig)
+    base_config = config_from_dict(base, str(base_path or "defaults"))
     combos, configs = expand(spec, base, str(spec_path))          # every combination validated first
-    segments, scan, truth = _load_inputs(spec, spec_path)
+    inputs = load_inputs(spec, spec_path, base_config, executor, reporter, cache_dir)
+    identity = {"input": inputs.digest, "base": base_config.model_dump(mode="json"), "featmap": __version__}
     out = Path(out)
-    rows = run_sweep(combos, configs, segments, scan, truth, out, workers, progress)
+    rows = run_sweep(combos, configs, inputs, out, identity, executor, reporter)
     keys = list(dict.fromkeys(k for c in combos for k in c.params))
     cols = ["method"] + keys + [m for m in METRICS if any(m in r for r in rows)]
     buf = io.StringIO()
@@ -326,13 +385,13 @@ def run_sweep_file(spec_path: str | Path, out: str | Path, workers: int = 2, pro
     for r in rows:
         writer.writerow(["" if r.get(c) is None else r.get(c) for c in cols])
     atomic_write_text(out / "sweep.csv", buf.getvalue())
-    best = best_row(rows, spec.select) if truth is not None else None
+    best = best_row(rows, spec.select) if inputs.reference is not None else None
     if best is not None:
-        overrides = [f"{k}={json.dumps(best[k])}" for k in keys if k in best and k.startswith(f"fusion.{best['method']}.")
-                     or (k in best and k.startswith("fusion.corners."))]
-        cfg = config_from_dict(apply_overrides(base, overrides), "best")
+        overrides_best = [f"{k}={json.dumps(best[k])}" for k in keys if k in best and
+                          (k.startswith(f"fusion.{best['method']}.") or k.startswith("fusion.corners."))]
+        cfg = config_from_dict(apply_overrides(base, overrides_best, FeatmapConfig), "best")
         header = (f"# best of {len(rows)} combinations for {spec.select.goal} {spec.select.metric} "
                   f"= {best[spec.select.metric]:.4f} (method {best['method']}); use with --config\n")
         atomic_write_text(out / "best.yaml", header + cfg.to_yaml())
-    plot_sweep(rows, keys, out, spec.select.metric if truth is not None else "count")
+    plot_sweep(rows, keys, out, spec.select.metric if inputs.reference is not None else "count")
     return rows, best

@@ -15,20 +15,22 @@ docs/figures/ for the README gallery.
 
 from __future__ import annotations
 
-import json
 import platform
 import shutil
 import time
 from pathlib import Path
 
-from featmap.config import load_config
+from featmap.console import RichReporter
 from featmap.datasets import KittiRawDataset
-from featmap.evaluation import compute_metrics
+from featmap.evaluation import truth_metrics
 from featmap.fusion import FUSION_METHODS, fuse
-from featmap.io.run_folder import load_run
-from featmap.pipeline import MappingPipeline
-from featmap.plotting.figures import make_figures
-from featmap.progress import track
+from featmap.io.markdown import markdown_table
+from featmap.io.run_metrics import read_run_metrics
+from featmap.outputs import tiles_of
+from featmap.pipeline import MappingPipeline, SegmentStore, load_config, local_executor
+from featmap.pipeline.run_folder import load_run
+from featmap.plotting.figures import FigureInputs, make_figures
+from featmap.reporting import track
 from featmap.simulation.sensors import SENSORS
 from featmap.simulation.simulate import SIM_DATE, simulate_drive
 from featmap.simulation.worlds import load_world
@@ -42,6 +44,7 @@ CASES = {
     "prescan_case2": ("prescan_case2", "vlp32", (0.05, 0.1)),
 }
 DRIVE = f"{SIM_DATE}_drive_0001"
+REPORTER = RichReporter()
 
 
 def drive_for(case: str) -> Path:
@@ -49,7 +52,7 @@ def drive_for(case: str) -> Path:
     root = ROOT / "data" / "sim" / (world if case == "residential" else case)
     if not (root / SIM_DATE / f"{DRIVE}_sync" / "truth" / "simulation.json").exists():
         simulate_drive(load_world(world), root, SENSORS[sensor], pose_noise=pose_noise, seed=0,
-                       progress=lambda it, n: track(it, n, f"simulating {case}"))
+                       progress=lambda it, n: track(REPORTER, it, n, f"simulating {case}"))
     return root
 
 
@@ -57,7 +60,9 @@ def run_case(case: str) -> Path:
     root = drive_for(case)
     out = ROOT / "runs" / "paper" / case
     ds = KittiRawDataset(root, DRIVE)
-    MappingPipeline(ds, load_config(), out, list(FUSION_METHODS), workers=2, cache_dir=ROOT / "data" / "cache").run()
+    with local_executor(2) as executor:
+        MappingPipeline(load_config(), list(FUSION_METHODS), SegmentStore(ROOT / "data" / "cache"), executor,
+                        REPORTER).run(ds, out)
     return out
 
 
@@ -66,27 +71,28 @@ def corner_modes(run_dir: Path) -> dict:
     out = {}
     for mode in ("none", "midpoint", "intersection"):
         cfg = load_config(None, [f"fusion.corners.mode={mode}"])
-        res = fuse("proposed", run.segments.segments, run.segments.scan, cfg)
-        m = compute_metrics(res.segments, run.truth)
+        res = fuse("proposed", run.segments.segments, run.segments.scan, cfg.fusion)
+        m = truth_metrics(res.segments, run.truth)
         out[mode] = {"corner_err_cm": m["corner_err_cm"], "vertex_error_sum_m": m["vertex_error_sum_m"],
                      "precision": m["precision"], "recall": m["recall"]}
     return out
 
 
-def fmt(v, nd=4):
-    return "-" if v is None else (f"{v:.{nd}f}" if isinstance(v, float) else str(v))
+table = markdown_table
 
 
-def table(header, rows):
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    return "\n".join(lines + ["| " + " | ".join(fmt(c) if not isinstance(c, str) else c for c in r) + " |" for r in rows])
+def figures_of(run_dir: Path) -> list[Path]:
+    run = load_run(run_dir)
+    inputs = FigureInputs(run.segments, list(run.fused), run.config.fusion, run.trajectory, run.frame, run.truth,
+                          tiles_of(run.config.output))
+    return make_figures(inputs, run_dir / "figures")
 
 
 def main() -> None:
     start = time.time()
     runs = {case: run_case(case) for case in CASES}
-    figures = {case: make_figures(load_run(runs[case]), runs[case] / "figures") for case in runs}
-    metrics = {case: json.loads((runs[case] / "metrics.json").read_text()) for case in runs}
+    figures = {case: figures_of(runs[case]) for case in runs}
+    metrics = {case: read_run_metrics(runs[case] / "metrics.json") for case in runs}
     methods = list(FUSION_METHODS)
 
     gallery = ROOT / "docs" / "figures"
@@ -110,21 +116,22 @@ def main() -> None:
     rows = []
     for case in runs:
         for m in methods:
-            r = metrics[case]["methods"][m]
-            rows.append([case, m, r["count"], r["count_ratio"], r["precision"], r["precision_any"], r["recall"],
-                         r["redundancy"], r["offset_cm"], r["corner_err_cm"], r["seconds"]])
+            r = metrics[case].primary_scores(m)
+            rows.append([case, m, metrics[case].methods[m].count, r["count_ratio"], r["precision"], r["precision_any"],
+                         r["recall"], r["redundancy"], r["offset_cm"], r["corner_err_cm"], metrics[case].methods[m].seconds])
     md += [table(header, rows), ""]
 
-    md += ["## Table 1: number of fused features (residential drive)", "",
-           (runs["residential"] / "figures" / "table1_counts.md").read_text().split("\n", 2)[2], ""]
+    counts = [line.split(",") for line in (runs["residential"] / "figures" / "fig10_counts.csv").read_text().splitlines()]
+    md += ["## Table 1: number of fused features (residential drive; the local maps of Figs. 9-11)", "",
+           table(counts[0], counts[1:]), ""]
     md += ["## Table 2: vertex error sums (m), PreScan stand-in cases", ""]
     for case in ("prescan_case1", "prescan_case2"):
-        sums = {m: metrics[case]["methods"][m].get("vertex_error_sum_m") or {} for m in methods}
+        sums = {m: metrics[case].primary_scores(m).get("vertex_error_sum_m") or {} for m in methods}
         labels = [lab for lab in "abcd" if any(lab in s for s in sums.values())]
         md += [f"**{case}** (32 beams, pose noise {CASES[case][2][0]} m / {CASES[case][2][1]} deg)", "",
                table(["vertex"] + methods, [[f"{lab} (m)"] + [sums[m].get(lab) for m in methods] for lab in labels]), ""]
     md += ["## Table 3: fusion time (s, including corner optimisation)", "",
-           table(["drive"] + methods, [[case] + [metrics[case]["methods"][m]["seconds"] for m in methods] for case in runs]),
+           table(["drive"] + methods, [[case] + [metrics[case].methods[m].seconds for m in methods] for case in runs]),
            "", "Extraction speed is measured separately: `benchmarks/bench_extraction.py` (README, Speed).", ""]
 
     md += ["## Corner optimisation: the paper's midpoint rule against featmap's line intersection", "",

@@ -2,8 +2,8 @@ from pathlib import Path
 
 import pytest
 
-from featmap.config import FeatmapConfig, commented_yaml, load_config, save_config
 from featmap.errors import ConfigError
+from featmap.pipeline.config import FeatmapConfig, default_config_yaml, load_config, save_config
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -12,7 +12,7 @@ def test_shipped_default_yaml_matches_the_models():
     assert load_config(ROOT / "configs" / "default.yaml") == FeatmapConfig()
     # and it is exactly the rendering of the defaults (every key documented)
     text = (ROOT / "configs" / "default.yaml").read_text()
-    assert commented_yaml() in text
+    assert default_config_yaml() in text
 
 
 def test_precedence_defaults_yaml_set(tmp_path):
@@ -25,7 +25,7 @@ def test_precedence_defaults_yaml_set(tmp_path):
 
 
 def test_save_and_reload_round_trip(tmp_path):
-    cfg = load_config(None, ["fusion.corners.mode=midpoint", "extraction.seed=4"])
+    cfg = load_config(None, ["fusion.corners.mode=midpoint", "extraction.ransac_planes.seed=4"])
     save_config(cfg, tmp_path / "config.yaml")
     assert load_config(tmp_path / "config.yaml") == cfg
 
@@ -61,3 +61,24 @@ def test_missing_and_malformed_yaml(tmp_path):
     scalar.write_text("42\n")
     with pytest.raises(ConfigError, match="expected a mapping"):
         load_config(scalar)
+
+
+@pytest.mark.parametrize("override,message", [
+    ("fusion.proposed.min_support=true", r"'fusion.proposed.min_support' input should be a valid integer \(got True\)"),
+    ("fusion.proposed.delta_deg='5'", r"'fusion.proposed.delta_deg' input should be a valid number"),
+    ("output.plots=1", r"'output.plots' input should be a valid boolean"),
+])
+def test_types_are_strict(override, message):
+    """``min_support: true`` is not 1 and a quoted number is not a number."""
+    with pytest.raises(ConfigError, match=message):
+        load_config(None, [override])
+    assert load_config(None, ["fusion.proposed.delta_deg=5"]).fusion.proposed.delta_deg == 5.0   # int for float: fine
+
+
+def test_config_file_that_is_not_utf8_or_is_a_folder(tmp_path):
+    bad = tmp_path / "latin1.yaml"
+    bad.write_bytes("fusion:\n  proposed: {delta_deg: 5}  # \xe9t\xe9\n".encode("latin-1"))
+    with pytest.raises(ConfigError, match=r"latin1.yaml: not UTF-8 text"):
+        load_config(bad)
+    with pytest.raises(ConfigError, match=r"is a folder, expected a YAML file"):
+        load_config(tmp_path)

@@ -5,11 +5,11 @@ import pytest
 from typer.testing import CliRunner
 
 from featmap.cli import app
-from featmap.config import load_config
 from featmap.datasets import KittiRawDataset
 from featmap.errors import ConfigError
-from featmap.pipeline import MappingPipeline
-from featmap.sweep import expand, load_sweep, pareto_front, run_sweep_file
+from featmap.pipeline import MappingPipeline, SegmentStore, load_config
+from featmap.plotting.sweep_plots import pareto_front
+from featmap.sweep import MAX_COMBINATIONS, expand, load_sweep, run_sweep_file
 
 runner = CliRunner()
 
@@ -18,7 +18,7 @@ runner = CliRunner()
 def case1_run(case1_drive, tmp_path_factory):
     out = tmp_path_factory.mktemp("sweeprun")
     ds = KittiRawDataset(case1_drive.root, case1_drive.drive)
-    MappingPipeline(ds, load_config(None, ["output.plots=false"]), out / "run", ["proposed"], cache_dir=out / "c").run()
+    MappingPipeline(load_config(None, ["output.plots=false"]), ["proposed"], SegmentStore(out / "c")).run(ds, out / "run")
     return out / "run"
 
 
@@ -33,13 +33,13 @@ def _write(tmp_path, text):
     ("  fusion.proposed.eta_m: {start: 2, stop: 1, num: 3}", r"stop 1.0 < start 2.0"),
     ("  fusion.proposed.gamma: ['high', 0.5]", r"'fusion.proposed.gamma' input should be a valid number"),
     ("  fusion.proposed.gamma: []", r"grid key 'fusion.proposed.gamma' has no values"),
-    ("  extraction.voxel_size_m: [0.1, 0.2]", r"never re-extracts"),
+    ("  extraction.ransac_planes.voxel_size_m: [0.1, 0.2]", r"never re-extracts"),
     ("  fusion.proposed.gamma: [0.5, 1.5]", r"'fusion.proposed.gamma' input should be less than or equal to 1"),
 ])
 def test_bad_sweeps_fail_before_anything_runs(tmp_path, case1_run, grid, match):
     path = _write(tmp_path, f"input: {case1_run / 'segments.csv'}\nmethods: [proposed]\ngrid:\n{grid}\n")
     with pytest.raises(ConfigError, match=match):
-        run_sweep_file(path, tmp_path / "out", workers=1)
+        run_sweep_file(path, tmp_path / "out")
     assert not (tmp_path / "out").exists()
 
 
@@ -83,18 +83,25 @@ grid:
     rows = list(csv.DictReader(open(out / "sweep.csv")))
     assert len(rows) == 3 * 2 + 2
     assert {"method", "fusion.proposed.delta_deg", "count", "precision", "recall", "quality", "seconds"} <= set(rows[0])
+    # best.yaml holds the settings of the row with the highest quality, and they reproduce its score
+    top = max(rows, key=lambda r: float(r["quality"]))
     best = load_config(out / "best.yaml")
-    assert best.fusion.proposed.delta_deg in (2, 5, 10)
+    assert f"= {float(top['quality']):.4f} (method {top['method']})" in (out / "best.yaml").read_text()
+    if top["method"] == "proposed":
+        assert best.fusion.proposed.delta_deg == float(top["fusion.proposed.delta_deg"])
+        assert best.fusion.proposed.gamma == float(top["fusion.proposed.gamma"])
+    else:
+        assert best.fusion.density.lateral_eps_m == float(top["fusion.density.lateral_eps_m"])
     for name in ("heatmap_delta_gamma.png", "curves.png", "pareto.png"):
         assert (out / name).stat().st_size > 5000
     # resume: drop three finished results; only those are evaluated again
     lines = (out / "results.jsonl").read_text().splitlines()
     (out / "results.jsonl").write_text("\n".join(lines[:-3]) + "\n" + lines[-3][:10])   # last line cut short
-    rows2, _ = run_sweep_file(path, out, workers=1)
+    rows2, _ = run_sweep_file(path, out)
     new_lines = (out / "results.jsonl").read_text().splitlines()
     assert len(new_lines) == len(lines)
     assert new_lines[:-3] == lines[:-3]                      # kept, not evaluated again
-    assert all(json.loads(line)["key"] for line in new_lines)
+    assert all(json.loads(line)["key"] for line in new_lines[1:])
     assert len(rows2) == 8
     # the wide density bandwidth merges the building's parallel walls: worse precision than the narrow one
     dens = {float(r["fusion.density.lateral_eps_m"]): r for r in rows if r["method"] == "density"}
@@ -106,3 +113,31 @@ def test_pareto_front():
 
     pts = np.array([[1.0, 0.9], [1.2, 0.95], [1.1, 0.8], [0.9, 0.5], [1.5, 0.94]])
     assert sorted(pareto_front(pts).tolist()) == [0, 1, 3]
+
+
+def test_a_sweep_of_other_inputs_into_the_same_folder_is_refused(tmp_path, case1_run):
+    path = _write(tmp_path, f"input: {case1_run / 'segments.csv'}\nmethods: [proposed]\n"
+                            "grid:\n  fusion.proposed.delta_deg: [2, 5]\n")
+    out = tmp_path / "out"
+    run_sweep_file(path, out)
+    before = (out / "results.jsonl").read_text()
+    other = tmp_path / "other.csv"
+    lines = (case1_run / "segments.csv").read_text().splitlines()
+    other.write_text("\n".join(lines[:-5]) + "\n")                 # another input
+    path2 = _write(tmp_path, f"input: {other}\nmethods: [proposed]\ngrid:\n  fusion.proposed.delta_deg: [2, 5]\n")
+    with pytest.raises(ConfigError, match="holds the results of another sweep"):
+        run_sweep_file(path2, out)
+    with pytest.raises(ConfigError, match="holds the results of another sweep"):   # another base config
+        run_sweep_file(path, out, overrides=["fusion.proposed.eta_m=0.7"])
+    assert (out / "results.jsonl").read_text() == before
+
+
+def test_a_huge_grid_is_refused_before_expanding_or_sampled(tmp_path):
+    grid = "".join(f"  fusion.proposed.{k}: {{start: 0, stop: 1, num: 1000}}\n" for k in ("gamma", "eta_m"))
+    grid += "  fusion.proposed.delta_deg: {start: 0, stop: 90, num: 1000}\n"
+    spec = load_sweep(_write(tmp_path, f"input: x.csv\nmethods: [proposed]\ngrid:\n{grid}"))
+    with pytest.raises(ConfigError, match=r"1,000,000,000 combinations .* use 'samples: N'"):
+        expand(spec, {})
+    combos, _ = expand(spec.model_copy(update={"samples": 50}), {})
+    assert len(combos) == 50 and len({c.key for c in combos}) == 50
+    assert MAX_COMBINATIONS < 1e9

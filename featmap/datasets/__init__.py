@@ -1,8 +1,8 @@
-"""Datasets by name. An item is a :class:`ScanItem`: velodyne points, ``T_w_velo`` and a timestamp."""
+"""Scan sources behind one contract (:class:`ScanSource`), opened by format name (:func:`open_source`)."""
 
-from featmap.datasets.base import ScanItem
-from featmap.datasets.kitti_raw import KittiRawDataset, parse_drive, parse_frames
+from featmap.datasets.base import Scan, ScanSource, SourceNotes, SourceSpec, parse_frames
+from featmap.datasets.kitti_raw import KittiRawDataset, parse_drive
+from featmap.datasets.registry import DATASETS, open_source
 
-DATASETS = {"kitti_raw": KittiRawDataset}
-
-__all__ = ["DATASETS", "KittiRawDataset", "ScanItem", "parse_drive", "parse_frames"]
+__all__ = ["DATASETS", "KittiRawDataset", "Scan", "ScanSource", "SourceNotes", "SourceSpec", "open_source",
+           "parse_drive", "parse_frames"]

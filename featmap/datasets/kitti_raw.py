@@ -5,7 +5,8 @@
 with one-line :class:`DatasetError` messages naming the file, then hands poses and calibration to
 pykitti. Poses are pykitti's: ``T_w_velo = T_w_imu @ inv(T_velo_imu)``, world = the local metric
 frame whose origin is the drive's first OXTS packet (always the first frame of the *drive*, so a
-frame selection does not move the map).
+frame selection does not move the map). It implements :class:`featmap.datasets.base.ScanSource`
+(3D scans, sensor = the velodyne).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from featmap.datasets.base import ScanItem
+from featmap.datasets.base import Scan, SourceNotes, select_frames
 from featmap.errors import DatasetError
 from featmap.geo import GeoFrame
 from featmap.io.kitti_raw import (CALIB_FILES, drive_paths, read_calib_file, read_oxts_packet, read_rigid_calib,
@@ -39,24 +40,6 @@ def parse_drive(drive: str) -> tuple[str, str]:
     return match.group(1), match.group(2)
 
 
-def parse_frames(text: str | None) -> slice | None:
-    """``"start:stop:step"`` (each part optional) -> slice; None for all frames."""
-    if text is None or text.strip() in ("", ":"):
-        return None
-    parts = text.split(":")
-    if len(parts) > 3:
-        raise DatasetError(f"--frames {text!r}: expected start:stop:step")
-    try:
-        values = [int(p) if p.strip() else None for p in parts]
-    except ValueError:
-        raise DatasetError(f"--frames {text!r}: expected integers, e.g. 0:200:2") from None
-    if len(values) == 1:
-        return slice(values[0], values[0] + 1)
-    if len(values) == 3 and values[2] is not None and values[2] <= 0:
-        raise DatasetError(f"--frames {text!r}: step must be positive")
-    return slice(*values)
-
-
 @dataclass(frozen=True)
 class DriveCheck:
     """What validating a drive found."""
@@ -68,24 +51,25 @@ class DriveCheck:
 
 
 class KittiRawDataset:
-    """A KITTI raw drive as a sequence of :class:`ScanItem` (``len(ds)``, ``ds[i]``).
+    """A KITTI raw drive as a sequence of :class:`Scan` (``len(ds)``, ``ds[i]``).
 
     Args:
         data_dir: KITTI raw root (contains ``YYYY_MM_DD/``).
         drive: ``YYYY_MM_DD_drive_NNNN``.
-        frames: a slice of the drive's frames (default: all).
+        frames: a slice of the drive's frames (default: all), or its text ``"start:stop:step"``.
         skip_bad_scans: leave out frames whose scan or OXTS packet is unreadable (reported in
-            ``skipped``) instead of failing.
+            ``notes.skipped``) instead of failing.
     """
 
-    name = "kitti_raw"
+    kind = "kitti_raw"
+    dimension = 3
 
-    def __init__(self, data_dir: str | Path, drive: str, frames: slice | None = None, skip_bad_scans: bool = False):
+    def __init__(self, data_dir: str | Path, drive: str, frames: slice | str | None = None,
+                 skip_bad_scans: bool = False):
         import pykitti
 
-        self._spec = {"data_dir": str(data_dir), "drive": drive, "frames": frames, "skip_bad_scans": skip_bad_scans}
         self.data_dir = Path(data_dir)
-        self.drive = drive
+        self.drive = self.name = drive
         self.date, self.drive_id = parse_drive(drive)
         self.calib_dir, self.drive_dir = drive_paths(self.data_dir, self.date, self.drive_id)
         self.skip_bad_scans = skip_bad_scans
@@ -94,20 +78,21 @@ class KittiRawDataset:
         if bad and not skip_bad_scans:
             frame = min(bad)
             raise DatasetError(check.bad_oxts.get(frame) or check.bad_scans[frame])
+        selected = [k for k in select_frames(check.n_frames, frames, drive) if k not in bad]
         good = [k for k in range(check.n_frames) if k not in bad]
         if not good:
             raise DatasetError(f"{self.drive_dir}: no readable frame")
-        self.skipped = {k: check.bad_oxts.get(k) or check.bad_scans[k] for k in sorted(bad)}
-        self.poor_gps = [k for k in check.poor_gps if k not in bad]
+        skipped = {k: check.bad_oxts.get(k) or check.bad_scans[k] for k in sorted(bad)}
+        poor_gps = [k for k in check.poor_gps if k not in bad]
+        self.notes = SourceNotes(skipped=skipped, flags={"poor_gps": poor_gps} if poor_gps else {})
+        self.location = self.drive_dir.resolve()
         try:
             self._raw = pykitti.raw(str(self.data_dir), self.date, self.drive_id,
                                     frames=good if bad else None)
         except Exception as exc:  # pykitti's own failures, after our checks: name the drive
             raise DatasetError(f"{self.drive_dir}: pykitti could not load the drive ({type(exc).__name__}: {exc})") from None
-        self._good_frames = good
-        selected = good if frames is None else [k for k in range(check.n_frames)[frames] if k not in bad]
         if not selected:
-            raise DatasetError(f"--frames selects no frame of {drive} ({check.n_frames} frames)")
+            raise DatasetError(f"--frames selects no readable frame of {drive} ({check.n_frames} frames)")
         self._position = {frame: i for i, frame in enumerate(good)}
         self.frames = selected
         self.T_velo_imu = np.asarray(self._raw.calib.T_velo_imu)
@@ -115,7 +100,7 @@ class KittiRawDataset:
         self._stamps = read_timestamps(self.drive_dir / "velodyne_points" / "timestamps.txt") \
             if (self.drive_dir / "velodyne_points" / "timestamps.txt").exists() else None
         first = self._raw.oxts[0].packet
-        self.geo_frame = GeoFrame(float(first.lat), float(first.lon), float(first.alt))
+        self.geo_origin = GeoFrame(float(first.lat), float(first.lon), float(first.alt))
 
     # -- validation -----------------------------------------------------------------------------------
     def _check_layout(self) -> DriveCheck:
@@ -171,15 +156,11 @@ class KittiRawDataset:
                 poor.append(k)
         return DriveCheck(len(scans), bad_scans, bad_oxts, poor)
 
-    def spec(self) -> dict:
-        """Constructor arguments (to rebuild the dataset in a worker process)."""
-        return dict(self._spec)
-
     # -- sequence -------------------------------------------------------------------------------------
     def __len__(self) -> int:
         return len(self.frames)
 
-    def __getitem__(self, i: int) -> ScanItem:
+    def __getitem__(self, i: int) -> Scan:
         if not -len(self) <= i < len(self):
             raise IndexError(i)
         frame = self.frames[i]
@@ -187,14 +168,23 @@ class KittiRawDataset:
         points = read_velo_bin(self._raw.velo_files[pos])
         T_w_velo = np.asarray(self._raw.oxts[pos].T_w_imu) @ self._T_imu_velo
         stamp = float(self._stamps[frame]) if self._stamps is not None and frame < len(self._stamps) else 0.1 * frame
-        return ScanItem(frame=frame, points=points, T_w_velo=T_w_velo, timestamp=stamp)
+        return Scan(index=frame, points=points, T_world_sensor=T_w_velo, timestamp=stamp)
 
     def poses(self) -> np.ndarray:
         """(F, 4, 4) ``T_w_velo`` of the selected frames (no scan is read)."""
         return np.stack([np.asarray(self._raw.oxts[self._position[f]].T_w_imu) @ self._T_imu_velo for f in self.frames])
 
-    @property
-    def truth_dir(self) -> Path | None:
-        """The simulator's ground truth for this drive, when there is one."""
-        path = self.drive_dir / "truth"
-        return path if (path / "walls.csv").is_file() else None
+
+def open_drive_folder(location: str | Path, frames: str | None = None, skip_bad_scans: bool = False,
+                      reporter=None) -> KittiRawDataset:
+    """A KITTI raw drive from its folder ``ROOT/YYYY_MM_DD/YYYY_MM_DD_drive_NNNN_sync`` (the registry's opener)."""
+    folder = Path(location)
+    drive = folder.name.removesuffix("_sync")
+    parse_drive(drive)
+    return KittiRawDataset(folder.parent.parent, drive, frames, skip_bad_scans)
+
+
+def drive_folder(data_dir: str | Path, drive: str) -> Path:
+    """``DATA_DIR/YYYY_MM_DD/YYYY_MM_DD_drive_NNNN_sync`` of ``drive`` (``--drive`` + ``--data-dir``)."""
+    date, drive_id = parse_drive(drive)
+    return drive_paths(data_dir, date, drive_id)[1]

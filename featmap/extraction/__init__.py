@@ -1,5 +1,11 @@
-"""Per-scan extraction of vertical planes as 2D ground segments (numpy in, numpy out)."""
+"""Per-scan extraction of wall segments (numpy in, numpy out), chosen by the scan's dimension.
 
-from featmap.extraction.vertical_planes import ScanSegments, extract_segments, segments_to_world
+>>> from featmap.extraction import ExtractionConfig, extract_scan
+>>> segments = extract_scan(points, 3, ExtractionConfig())   # doctest: +SKIP
+"""
 
-__all__ = ["ScanSegments", "extract_segments", "segments_to_world"]
+from featmap.extraction.base import Extractor, ScanSegments, segments_to_world, world_fields
+from featmap.extraction.registry import EXTRACTORS, ExtractionConfig, extract_scan, extractor_for
+
+__all__ = ["EXTRACTORS", "ExtractionConfig", "Extractor", "ScanSegments", "extract_scan", "extractor_for",
+           "segments_to_world", "world_fields"]

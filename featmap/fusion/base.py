@@ -6,9 +6,11 @@ All arrays are in the local metric world frame (metres).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any, Callable
 
 import numpy as np
 
+from featmap.config import Section
 from featmap.geometry import as_segments, segment_lengths
 
 MIN_SEGMENT_LENGTH_M = 1e-6
@@ -39,6 +41,26 @@ class FusionResult:
 
     def __len__(self) -> int:
         return len(self.segments)
+
+
+@dataclass(frozen=True)
+class FusionMethod:
+    """A fusion method as the registry knows it (:mod:`featmap.fusion.registry`).
+
+    Attributes:
+        name: registry key, also the config section ``fusion.<name>`` and the file suffix ``fused_<name>``.
+        title: human-readable name for tables and figure legends.
+        color, linestyle: how figures and maps draw it.
+        config_type: the method's config section (a :class:`featmap.config.Section`).
+        fuse: ``fuse(segments (N, 4) world frame, scan (N,), config) -> FusionResult`` (before corner optimisation).
+    """
+
+    name: str
+    title: str
+    color: str
+    linestyle: str
+    config_type: type[Section]
+    fuse: Callable[[np.ndarray, np.ndarray, Any], "FusionResult"]
 
 
 def validate_input(segments, scan) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

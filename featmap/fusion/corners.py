@@ -14,11 +14,23 @@ Pairs are joined greedily, closest first; each endpoint moves at most once.
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
+from pydantic import Field
 from scipy.spatial import cKDTree
 
-from featmap.config import CornerConfig
+from featmap.config import Section
 from featmap.geometry import as_segments, included_angle, line_coefficients, line_intersection, segment_directions
+
+
+class CornerConfig(Section):
+    """Corner optimisation, run identically after every method (as in the paper's Table 2)."""
+
+    mode: Literal["midpoint", "intersection", "none"] = Field(
+        "intersection", description="midpoint = the paper's rule; intersection = ours; none = off")
+    snap_distance_m: float = Field(1.0, ge=0, description="endpoints of different features closer than this are joined")
+    min_angle_deg: float = Field(30.0, ge=0, le=90, description="intersection mode: lines must meet at least this steeply")
 
 
 def optimise_corners(segments, config: CornerConfig = CornerConfig()) -> np.ndarray:

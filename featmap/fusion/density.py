@@ -15,13 +15,23 @@ No support filter, as in the original.
 from __future__ import annotations
 
 import numpy as np
+from pydantic import Field
 from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
-from featmap.config import DensityConfig
-from featmap.fusion.base import (FusionResult, cluster_orientations, finish_clusters, merge_onto_mean_line,
-                                 validate_input)
+from featmap.config import Section
+from featmap.fusion.base import (FusionMethod, FusionResult, cluster_orientations, finish_clusters,
+                                 merge_onto_mean_line, validate_input)
 from featmap.geometry import segment_lengths, segment_orientations
+
+
+class DensityConfig(Section):
+    """Competing algorithm 2 (after Sarkar et al. 2014): orientation mean shift, then density clustering."""
+
+    orientation_bandwidth_deg: float = Field(3.0, gt=0, le=90, description="mean-shift bandwidth on orientation")
+    lateral_eps_m: float = Field(0.5, gt=0, description="max lateral separation of neighbouring segments")
+    longitudinal_gap_m: float = Field(1.0, ge=0, description="max gap along the line between neighbouring segments")
+    min_samples: int = Field(1, ge=1, description="DBSCAN min_samples (1 = every segment is a core point)")
 
 
 def spatial_neighbours(segments: np.ndarray, direction: np.ndarray, config: DensityConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -69,3 +79,7 @@ def fuse_density(segments, scan, config: DensityConfig = DensityConfig()) -> Fus
             groups[members] = next_id + sub
             next_id += int(sub.max()) + 1
     return finish_clusters(segments, scan, valid, groups, merge_onto_mean_line, weights=lengths)
+
+
+METHOD = FusionMethod(name="density", title="Competing 2: density clustering (Sarkar et al. 2014)", color="#2ca02c",
+                      linestyle=":", config_type=DensityConfig, fuse=fuse_density)

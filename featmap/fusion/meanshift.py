@@ -13,11 +13,19 @@ of different walls share a cluster.
 from __future__ import annotations
 
 import numpy as np
+from pydantic import Field
 
-from featmap.config import MeanShiftConfig
-from featmap.fusion.base import (FusionResult, cluster_orientations, finish_clusters, mean_shift,
+from featmap.config import Section
+from featmap.fusion.base import (FusionMethod, FusionResult, cluster_orientations, finish_clusters, mean_shift,
                                  merge_onto_mean_line, validate_input)
 from featmap.geometry import segment_midpoints, segment_orientations
+
+
+class MeanShiftConfig(Section):
+    """Competing algorithm 1 (after Lakaemper 2009): mean shift on orientation, then on centres."""
+
+    orientation_bandwidth_deg: float = Field(3.0, gt=0, le=90, description="mean-shift bandwidth on orientation")
+    center_bandwidth_m: float = Field(3.0, gt=0, description="mean-shift bandwidth on segment centres")
 
 
 def fuse_meanshift(segments, scan, config: MeanShiftConfig = MeanShiftConfig()) -> FusionResult:
@@ -35,3 +43,7 @@ def fuse_meanshift(segments, scan, config: MeanShiftConfig = MeanShiftConfig()) 
             groups[members] = next_id + sub
             next_id += int(sub.max()) + 1
     return finish_clusters(segments, scan, valid, groups, merge_onto_mean_line)
+
+
+METHOD = FusionMethod(name="meanshift", title="Competing 1: mean shift (Lakaemper 2009)", color="#1f77b4",
+                      linestyle="--", config_type=MeanShiftConfig, fuse=fuse_meanshift)

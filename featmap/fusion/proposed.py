@@ -20,18 +20,31 @@ about linearly with the number of segments for a map of bounded density.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
+from pydantic import Field
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from featmap.config import ProposedConfig
-from featmap.fusion.base import FusionResult, fit_clusters, relabel_by_first_appearance, validate_input
+from featmap.config import Section
+from featmap.fusion.base import (FusionMethod, FusionResult, fit_clusters, relabel_by_first_appearance,
+                                 validate_input)
 from featmap.geometry import (circle_overlap_area, included_angle, line_coefficients, point_segment_distance,
                               segment_lengths, segment_midpoints)
 
 _QUERY_CHUNK = 20_000
+
+
+class ProposedConfig(Section):
+    """The paper's method (Section 3): three criteria, clustering, least squares."""
+
+    delta_deg: float = Field(5.0, ge=0, le=90, description="criterion 1: max included angle beta")
+    gamma: float = Field(0.3, ge=0, le=1, description="criterion 2: min feature-circle overlap S_overlap/S_min")
+    eta_m: float = Field(0.5, ge=0, description="criterion 3: max relative distance d_max")
+    min_support: int = Field(4, ge=1, description="drop clusters with fewer member segments")
+    fit_weighting: Literal["length", "none"] = Field("length", description="weight of each member's endpoints in the TLS fit")
 
 
 @dataclass(frozen=True)
@@ -149,3 +162,7 @@ def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig()) -> 
     return FusionResult(segments=fused, support=support, labels=labels, segments_before_corners=fused,
                         clusters_dropped=int((~kept).sum()), skipped_zero_length=int((~valid).sum()),
                         extras={"linked_pairs": int(len(i))})
+
+
+METHOD = FusionMethod(name="proposed", title="Proposed (three criteria)", color="#d62728", linestyle="-",
+                      config_type=ProposedConfig, fuse=fuse_proposed)

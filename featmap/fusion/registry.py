@@ -1,43 +1,32 @@
 """Registry of fusion methods by name, each with its own typed config section.
 
-``fusion.<name>`` in the config holds a method's parameters; ``fusion.corners`` the corner
-optimisation that runs identically after every method (as the paper does for its Table 2).
-A new method is one entry here plus its config model in :mod:`featmap.config`.
+``METHODS`` is the one table of methods: name, title, colour and line style for figures, config
+section and function. ``FusionConfig`` (the ``fusion:`` section of a run's config) is derived from it:
+one section per method plus ``corners``, the corner optimisation that runs identically after every
+method (as the paper does for its Table 2).
+
+A new method is one module (its function, its config section and a ``METHOD`` entry) plus one line in
+``METHODS`` below.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import Any, Callable
+from dataclasses import replace
 
-import numpy as np
+from pydantic import create_model
 
-from featmap.config import FeatmapConfig
+from featmap.config import Section
 from featmap.errors import ConfigError
-from featmap.fusion.base import FusionResult
-from featmap.fusion.corners import optimise_corners
-from featmap.fusion.density import fuse_density
-from featmap.fusion.meanshift import fuse_meanshift
-from featmap.fusion.proposed import fuse_proposed
+from featmap.fusion import density, meanshift, proposed
+from featmap.fusion.base import FusionMethod, FusionResult
+from featmap.fusion.corners import CornerConfig, optimise_corners
 
+METHODS: tuple[FusionMethod, ...] = (proposed.METHOD, meanshift.METHOD, density.METHOD)
+FUSION_METHODS: dict[str, FusionMethod] = {m.name: m for m in METHODS}
 
-@dataclass(frozen=True)
-class FusionMethod:
-    """A registered method: ``fuse(segments (N, 4), scan (N,), config) -> FusionResult``."""
-
-    name: str
-    title: str
-    fuse: Callable[[np.ndarray, np.ndarray, Any], FusionResult]
-
-    def config_of(self, config: FeatmapConfig):
-        return getattr(config.fusion, self.name)
-
-
-FUSION_METHODS: dict[str, FusionMethod] = {
-    "proposed": FusionMethod("proposed", "Proposed (three criteria)", fuse_proposed),
-    "meanshift": FusionMethod("meanshift", "Competing 1: mean shift (Lakaemper 2009)", fuse_meanshift),
-    "density": FusionMethod("density", "Competing 2: density clustering (Sarkar et al. 2014)", fuse_density),
-}
+FusionConfig = create_model(
+    "FusionConfig", __base__=Section, __doc__="Fusion: one section per method, and the shared corner optimisation.",
+    **{m.name: (m.config_type, m.config_type()) for m in METHODS}, corners=(CornerConfig, CornerConfig()))
 
 
 def get_method(name: str) -> FusionMethod:
@@ -68,10 +57,14 @@ def resolve_methods(spec: str | list[str] | None) -> list[str]:
     return list(dict.fromkeys(names))
 
 
-def fuse(name: str, segments, scan, config: FeatmapConfig = FeatmapConfig()) -> FusionResult:
-    """Run method ``name`` with its config section, then the shared corner optimisation."""
-    method = get_method(name)
-    result = method.fuse(segments, scan, method.config_of(config))
-    before = result.segments_before_corners
-    return replace(result, segments=optimise_corners(before, config.fusion.corners))
+def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig()) -> FusionResult:  # type: ignore[valid-type]
+    """Run method ``name`` with its section of ``config`` (the ``fusion:`` section), then corner optimisation.
 
+    Args:
+        segments: (N, 4) world-frame segments ``x1, y1, x2, y2`` (metres).
+        scan: (N,) scan index of each segment.
+    """
+    method = get_method(name)
+    result = method.fuse(segments, scan, getattr(config, name))
+    before = result.segments_before_corners
+    return replace(result, segments=optimise_corners(before, config.corners))

@@ -8,24 +8,21 @@ import numpy as np
 
 from featmap.geo import GeoFrame
 from featmap.io.atomic import atomic_write_text
-
-_COLORS = {"proposed": "#d62728", "meanshift": "#1f77b4", "density": "#2ca02c", "segments": "#ff7f0e",
-           "truth": "#555555"}
+from featmap.io.layers import MapLayer
 
 
-def write_html_map(path: str | Path, layers: dict[str, tuple[np.ndarray, np.ndarray | None]], frame: GeoFrame,
-                   trajectory: np.ndarray | None = None, truth_walls: np.ndarray | None = None,
-                   tiles: str = "OpenStreetMap") -> Path:
-    """Write a self-contained Leaflet map; each fused feature has a popup with its support and length.
+def write_html_map(path: str | Path, layers: list[MapLayer], frame: GeoFrame, trajectory: np.ndarray | None = None,
+                   trajectory_color: str = "#e377c2", tiles: str = "OpenStreetMap") -> Path:
+    """Write a self-contained Leaflet map, a toggleable layer each; every feature has a popup with its
+    support (when the layer has one) and length.
 
     Args:
-        layers: name -> (segments (M, 4) local frame, support (M,) or None).
+        layers: local-frame segments to draw, in order (the first drawn below the others).
         trajectory: (F, 2) local vehicle positions.
-        truth_walls: (W, 4) ground-truth walls, local frame.
     """
     import folium
 
-    all_pts = [np.asarray(s, float).reshape(-1, 2) for s, _ in layers.values() if len(s)]
+    all_pts = [np.asarray(layer.segments, float).reshape(-1, 2) for layer in layers if len(layer.segments)]
     if trajectory is not None:
         all_pts.append(np.asarray(trajectory, float))
     pts = np.concatenate(all_pts) if all_pts else np.zeros((1, 2))
@@ -34,9 +31,10 @@ def write_html_map(path: str | Path, layers: dict[str, tuple[np.ndarray, np.ndar
                       max_zoom=22, control_scale=True)
     fmap.fit_bounds([[float(lat.min()), float(lon.min())], [float(lat.max()), float(lon.max())]])
 
-    def add_lines(name, segments, support, show=True):
-        group = folium.FeatureGroup(name=name, show=show)
-        segments = np.asarray(segments, float).reshape(-1, 4)
+    def add_lines(layer: MapLayer):
+        name, support = layer.name, layer.support
+        group = folium.FeatureGroup(name=name, show=layer.show)
+        segments = np.asarray(layer.segments, float).reshape(-1, 4)
         la1, lo1 = frame.to_wgs84(segments[:, 0], segments[:, 1])
         la2, lo2 = frame.to_wgs84(segments[:, 2], segments[:, 3])
         for k in range(len(segments)):
@@ -45,18 +43,16 @@ def write_html_map(path: str | Path, layers: dict[str, tuple[np.ndarray, np.ndar
             if support is not None:
                 text += f"<br>support {int(support[k])} segments"
             folium.PolyLine([[float(la1[k]), float(lo1[k])], [float(la2[k]), float(lo2[k])]],
-                            color=_COLORS.get(name, "#9467bd"), weight=4 if support is not None else 2,
+                            color=layer.color, weight=layer.width,
                             opacity=0.9, popup=folium.Popup(text, max_width=250)).add_to(group)
         group.add_to(fmap)
 
-    if truth_walls is not None and len(truth_walls):
-        add_lines("truth", truth_walls, None)
-    for name, (segments, support) in layers.items():
-        add_lines(name, segments, support, show=name != "segments")
+    for layer in layers:
+        add_lines(layer)
     if trajectory is not None and len(trajectory) > 1:
         la, lo = frame.to_wgs84(trajectory[:, 0], trajectory[:, 1])
         group = folium.FeatureGroup(name="trajectory")
-        folium.PolyLine(np.column_stack([la, lo]).tolist(), color="#e377c2", weight=2, dash_array="6",
+        folium.PolyLine(np.column_stack([la, lo]).tolist(), color=trajectory_color, weight=2, dash_array="6",
                         popup="vehicle trajectory").add_to(group)
         group.add_to(fmap)
     folium.LayerControl(collapsed=False).add_to(fmap)

@@ -162,9 +162,14 @@ def read_rigid_calib(path: str | Path) -> np.ndarray:
     data = read_calib_file(path)
     if "R" not in data or "T" not in data or data["R"].size != 9 or data["T"].size != 3:
         raise DatasetError(f"{path}: expected 'R:' with 9 values and 'T:' with 3 values")
+    R, T = data["R"].reshape(3, 3), data["T"]
+    if not (np.isfinite(R).all() and np.isfinite(T).all()):
+        raise DatasetError(f"{path}: 'R' and 'T' must be finite numbers (found NaN or inf)")
+    if np.abs(R @ R.T - np.eye(3)).max() > 1e-2 or abs(np.linalg.det(R) - 1.0) > 1e-2:
+        raise DatasetError(f"{path}: 'R' is not a rotation matrix (R R^T != I or det(R) != 1)")
     out = np.eye(4)
-    out[:3, :3] = data["R"].reshape(3, 3)
-    out[:3, 3] = data["T"]
+    out[:3, :3] = R
+    out[:3, 3] = T
     return out
 
 

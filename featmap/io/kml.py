@@ -13,23 +13,28 @@ import numpy as np
 from featmap.errors import InputFileError
 from featmap.geo import GeoFrame
 from featmap.io.atomic import atomic_write_text
-
-_KML_COLORS = {"proposed": "ff2827d6", "meanshift": "ffb4771f", "density": "ff2ca02c",
-               "segments": "ff0e7fff", "truth": "ff595959", "trajectory": "ffff00ff"}   # aabbggrr
+from featmap.io.layers import MapLayer
 
 
-def write_kml(path: str | Path, layers: dict[str, tuple[np.ndarray, np.ndarray | None]], frame: GeoFrame,
-              trajectory: np.ndarray | None = None) -> Path:
-    """Write ``layers`` (name -> (segments (M, 4) local frame, support (M,) or None)) as KML folders.
+def kml_color(hex_rgb: str) -> str:
+    """``#rrggbb`` -> KML's opaque ``aabbggrr``."""
+    rr, gg, bb = hex_rgb[1:3], hex_rgb[3:5], hex_rgb[5:7]
+    return f"ff{bb}{gg}{rr}".lower()
+
+
+def write_kml(path: str | Path, layers: list[MapLayer], frame: GeoFrame, trajectory: np.ndarray | None = None,
+              trajectory_color: str = "#ff00ff") -> Path:
+    """Write ``layers`` (local-frame segments) as KML folders, one per layer, in WGS84.
 
     ``trajectory`` (F, 2) local positions becomes a path in its own folder.
     """
     import simplekml
 
     kml = simplekml.Kml(name="featmap")
-    for name, (segments, support) in layers.items():
+    for layer in layers:
+        name, support = layer.name, layer.support
         folder = kml.newfolder(name=name)
-        segments = np.asarray(segments, float).reshape(-1, 4)
+        segments = np.asarray(layer.segments, float).reshape(-1, 4)
         lat1, lon1 = frame.to_wgs84(segments[:, 0], segments[:, 1])
         lat2, lon2 = frame.to_wgs84(segments[:, 2], segments[:, 3])
         for k in range(len(segments)):
@@ -37,13 +42,13 @@ def write_kml(path: str | Path, layers: dict[str, tuple[np.ndarray, np.ndarray |
                                         coords=[(float(lon1[k]), float(lat1[k])), (float(lon2[k]), float(lat2[k]))])
             length = float(np.hypot(*(segments[k, 2:] - segments[k, :2])))
             line.description = f"length {length:.2f} m" + (f", support {int(support[k])}" if support is not None else "")
-            line.style.linestyle.color = _KML_COLORS.get(name, "ffffffff")
-            line.style.linestyle.width = 3 if name in ("proposed", "meanshift", "density") else 1.5
+            line.style.linestyle.color = kml_color(layer.color)
+            line.style.linestyle.width = layer.width
     if trajectory is not None and len(trajectory) > 1:
         folder = kml.newfolder(name="trajectory")
         lat, lon = frame.to_wgs84(trajectory[:, 0], trajectory[:, 1])
         path_line = folder.newlinestring(name="trajectory", coords=list(zip(lon.tolist(), lat.tolist())))
-        path_line.style.linestyle.color = _KML_COLORS["trajectory"]
+        path_line.style.linestyle.color = kml_color(trajectory_color)
         path_line.style.linestyle.width = 2
     return atomic_write_text(path, kml.kml())
 

@@ -12,6 +12,7 @@ When tiles cannot be had, the plot goes on without them and a warning says why.
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,15 @@ from featmap.geo import GeoFrame, latlon_to_mercator
 
 class BasemapWarning(UserWarning):
     """The basemap could not be drawn; the plot continues without it."""
+
+
+@dataclass(frozen=True)
+class Tiles:
+    """Where map tiles come from: an xyzservices name or ``{z}/{x}/{y}`` URL, an on-disk cache, a timeout."""
+
+    source: str = "OpenStreetMap.Mapnik"
+    cache_dir: str | None = "~/.cache/featmap/tiles"
+    timeout_s: float = 5.0
 
 
 def _provider(source: str):
@@ -36,10 +46,11 @@ def _provider(source: str):
     return node
 
 
-def add_basemap(ax, frame: GeoFrame, source: str = "OpenStreetMap.Mapnik", cache_dir: str | Path | None = None,
-                timeout_s: float = 5.0, zoom: int | str = "auto", attribution: bool = True) -> bool:
+def add_basemap(ax, frame: GeoFrame, tiles: Tiles = Tiles(), zoom: int | str = "auto", attribution: bool = True) -> bool:
     """Draw tiles under the current view of ``ax`` (local frame). Returns False (and warns) on failure."""
     import contextily as ctx
+
+    source, cache_dir, timeout_s = tiles.source, tiles.cache_dir, tiles.timeout_s
 
     x0, x1 = sorted(ax.get_xlim())
     y0, y1 = sorted(ax.get_ylim())

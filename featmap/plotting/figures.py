@@ -1,55 +1,63 @@
-"""The paper's figures and tables from one run folder (``featmap figures RUN_DIR``).
+"""The paper's figures from one run (``featmap figures RUN_DIR``); its Tables 1-3 are ``featmap compare``.
 
 Fig. 2-3 feature circles; Fig. 6 fusion of one cluster; Fig. 7 corner optimisation; Fig. 8 global map
-before/after fusion; Figs. 9-10 four local maps for the three methods in 3D and 2D; Fig. 11 the local
-maps over map tiles; Figs. 13-14 ground truth against fused features with zoomed vertices; Tables 1-3.
+before/after fusion; Figs. 9-10 four local maps for the three methods in 3D and 2D (with the feature
+counts per local map in ``fig10_counts.csv``); Fig. 11 the local maps over map tiles; Figs. 13-14 ground
+truth against fused features with zoomed vertices.
 """
 
 from __future__ import annotations
 
+import csv
 import io
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from featmap.fusion import fuse
-from featmap.io.atomic import atomic_path, atomic_write_text
-from featmap.io.run_folder import RunData
+from featmap.io.atomic import atomic_write_text
+from featmap.io.segments_csv import SegmentTable
+from featmap.plotting.basemap import Tiles
 from featmap.plotting.maps import draw_feature_circles, draw_method, draw_truth, draw_walls_3d, view_box
-from featmap.plotting.style import SEGMENT_COLOR, add_scalebar, draw_segments, finish_map_axes, method_color, method_label
+from featmap.plotting.style import (SEGMENT_COLOR, add_scalebar, draw_segments, finish_map_axes, method_color,
+                                    method_label, method_linestyle, new_figure, save_png)
 
-FIG_SIZE = (10, 8)
-DPI = 100
 LOCAL_HALF_M = 30.0
-LINESTYLES = {"proposed": "-", "meanshift": "--", "density": ":"}
 
 
-def _save(fig, path: Path) -> Path:
-    import matplotlib.pyplot as plt
+@dataclass(frozen=True)
+class FigureInputs:
+    """What the figures draw, in the run's local metric frame.
 
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=DPI, format="png")
-    plt.close(fig)
-    return path
+    Attributes:
+        segments: the extracted segments (world frame) with their scans.
+        methods: fusion methods to draw (re-fused here with ``fusion`` to get clusters and labels).
+        fusion: the run's ``fusion:`` config section.
+        trajectory: (F, 2) sensor positions.
+        frame: WGS84 origin of the local frame, or None (no map tiles then).
+        truth: ground truth with ``walls`` (W, 4) and ``labels`` (W, 2), or None.
+        tiles: where map tiles come from (Fig. 11).
+    """
+
+    segments: SegmentTable
+    methods: list[str]
+    fusion: Any
+    trajectory: np.ndarray
+    frame: Any
+    truth: Any
+    tiles: Tiles
 
 
-def _figure(nrows=1, ncols=1, size=FIG_SIZE, **kw):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt.subplots(nrows, ncols, figsize=size, **kw)
-
-
-def local_map_centres(run: RunData, n: int = 4) -> np.ndarray:
+def local_map_centres(run: FigureInputs, results: dict, n: int = 4) -> np.ndarray:
     """Centres (n, 2) of the local maps: the trajectory points with most fused walls nearby, spread along the drive."""
     traj = run.trajectory
     if len(traj) == 0:
         segs = run.segments.segments
         return np.tile(0.5 * (segs[:, :2] + segs[:, 2:]).mean(0), (n, 1))
-    fused = run.fused.get("proposed", next(iter(run.fused.values())))[0]
+    fused = results["proposed" if "proposed" in results else next(iter(results))].segments
     mids = 0.5 * (fused[:, :2] + fused[:, 2:]) if len(fused) else np.zeros((0, 2))
     chunks = np.array_split(np.arange(len(traj)), n)
     centres = []
@@ -71,27 +79,27 @@ def _in_box(segments: np.ndarray, centre: np.ndarray, half: float) -> np.ndarray
 
 # --- individual figures --------------------------------------------------------------------------------
 
-def fig_feature_circles(run: RunData, out: Path) -> list[Path]:
+def fig_feature_circles(run: FigureInputs, out: Path) -> list[Path]:
     table = run.segments
     scans, counts = np.unique(table.scan, return_counts=True)
     k = int(scans[np.argmax(counts)])
     nxt = scans[scans > k]
     k2 = int(nxt[0]) if len(nxt) else k
     paths = []
-    fig, ax = _figure()
+    fig, ax = new_figure()
     draw_feature_circles(ax, table.segments[table.scan == k], "C0", label=f"scan {k}")
     finish_map_axes(ax, f"Fig. 2: feature circles of one scan (scan {k}, {int((table.scan == k).sum())} features)")
-    paths.append(_save(fig, out / "fig02_feature_circles_one_scan.png"))
-    fig, ax = _figure()
+    paths.append(save_png(fig, out / "fig02_feature_circles_one_scan.png"))
+    fig, ax = new_figure()
     a = table.segments[table.scan == k]
     draw_feature_circles(ax, a, "C0", label=f"scan {k} (time k-1)")
     draw_feature_circles(ax, table.segments[table.scan == k2], "C1", label=f"scan {k2} (time k)", start=len(a) + 1)
     finish_map_axes(ax, f"Fig. 3: feature circles of two consecutive scans ({k} and {k2})")
-    paths.append(_save(fig, out / "fig03_feature_circles_two_scans.png"))
+    paths.append(save_png(fig, out / "fig03_feature_circles_two_scans.png"))
     return paths
 
 
-def fig_cluster_fusion(run: RunData, result, out: Path) -> Path:
+def fig_cluster_fusion(run: FigureInputs, result, out: Path) -> Path:
     """Fig. 6 in the fused line's own frame: along the wall in metres, across it in centimetres.
 
     The members of one cluster differ by centimetres over metres of wall, so the across axis is
@@ -100,7 +108,7 @@ def fig_cluster_fusion(run: RunData, result, out: Path) -> Path:
     seg = run.segments.segments
     support = result.support
     c = int(np.argsort(support)[len(support) // 2]) if len(support) else -1
-    fig, ax = _figure()
+    fig, ax = new_figure()
     if c >= 0:
         members = seg[result.labels == c]
         fused = result.segments_before_corners[c]
@@ -130,13 +138,13 @@ def fig_cluster_fusion(run: RunData, result, out: Path) -> Path:
     ax.set_title(f"Fig. 6: fusion of one cluster (support {int(support[c]) if c >= 0 else 0})")
     ax.legend(loc="best", fontsize=8)
     ax.grid(True, alpha=0.3)
-    return _save(fig, out / "fig06_cluster_fusion.png")
+    return save_png(fig, out / "fig06_cluster_fusion.png")
 
 
-def fig_corner_optimisation(run: RunData, result, out: Path) -> Path:
+def fig_corner_optimisation(run: FigureInputs, result, out: Path) -> Path:
     before, after = result.segments_before_corners, result.segments
     moved = np.hypot(*(before.reshape(-1, 2) - after.reshape(-1, 2)).T)
-    fig, axes = _figure(1, 2, size=(14, 7))
+    fig, axes = new_figure(1, 2, size=(14, 7))
     if len(moved) and moved.max() > 0:
         k = int(np.argmax(np.where(moved > 0, moved, -1)))
         centre = after.reshape(-1, 2)[k]
@@ -147,26 +155,26 @@ def fig_corner_optimisation(run: RunData, result, out: Path) -> Path:
         draw_method(ax, "proposed", segs, endpoints=True)
         view_box(ax, centre, 4.0)
         finish_map_axes(ax, f"Fig. 7: {title}")
-    mode = run.config.fusion.corners.mode
-    fig.suptitle(f"corner mode: {mode}, snap distance {run.config.fusion.corners.snap_distance_m} m")
-    return _save(fig, out / "fig07_corner_optimisation.png")
+    corners = run.fusion.corners
+    fig.suptitle(f"corner mode: {corners.mode}, snap distance {corners.snap_distance_m} m")
+    return save_png(fig, out / "fig07_corner_optimisation.png")
 
 
-def fig_global_map(run: RunData, out: Path) -> Path:
-    fig, axes = _figure(1, 2, size=(16, 8))
+def fig_global_map(run: FigureInputs, results: dict, out: Path) -> Path:
+    fig, axes = new_figure(1, 2, size=(16, 8))
     draw_segments(axes[0], run.segments.segments, SEGMENT_COLOR, lw=0.6, label=f"extracted segments ({len(run.segments)})")
-    name = "proposed" if "proposed" in run.fused else next(iter(run.fused), None)
+    name = "proposed" if "proposed" in results else next(iter(results), None)
     if name is not None:
-        draw_method(axes[1], name, run.fused[name][0])
+        draw_method(axes[1], name, results[name].segments)
     for ax, title in ((axes[0], "Fig. 8a: global map before fusion"), (axes[1], "Fig. 8b: global map after fusion")):
         if len(run.trajectory):
             ax.plot(run.trajectory[:, 0], run.trajectory[:, 1], "-", color="m", lw=0.8, label="trajectory")
         ax.autoscale_view()
         finish_map_axes(ax, title)
-    return _save(fig, out / "fig08_global_map.png")
+    return save_png(fig, out / "fig08_global_map.png")
 
 
-def _heights(run: RunData, result) -> tuple[np.ndarray, np.ndarray]:
+def _heights(run: FigureInputs, result) -> tuple[np.ndarray, np.ndarray]:
     extra = run.segments.extra
     if "z_min" not in extra or len(result.segments) == 0:
         return np.zeros(len(result.segments)), np.full(len(result.segments), 3.0)
@@ -178,11 +186,11 @@ def _heights(run: RunData, result) -> tuple[np.ndarray, np.ndarray]:
     return np.where(np.isfinite(lo), lo, 0.0), np.where(np.isfinite(hi), hi, 3.0)
 
 
-def fig_local_maps(run: RunData, results: dict, centres: np.ndarray, out: Path) -> list[Path]:
+def fig_local_maps(run: FigureInputs, results: dict, centres: np.ndarray, out: Path) -> list[Path]:
     methods = list(results)
     n = len(centres)
     letters = "abcd"
-    fig, axes = _figure(len(methods), n, size=(4.2 * n, 4.0 * len(methods)), subplot_kw={"projection": "3d"}, squeeze=False)
+    fig, axes = new_figure(len(methods), n, size=(4.2 * n, 4.0 * len(methods)), subplot_kw={"projection": "3d"}, squeeze=False)
     for r, name in enumerate(methods):
         res = results[name]
         lo, hi = _heights(run, res)
@@ -204,9 +212,9 @@ def fig_local_maps(run: RunData, results: dict, centres: np.ndarray, out: Path) 
                loc="lower center", ncol=len(methods))
     fig.suptitle(f"Fig. 9: fused planes of the three methods in 3D, four local maps ({2 * LOCAL_HALF_M:.0f} m x {2 * LOCAL_HALF_M:.0f} m, axes in metres)")
     fig.tight_layout()
-    p9 = _save(fig, out / "fig09_local_maps_3d.png")
+    p9 = save_png(fig, out / "fig09_local_maps_3d.png")
 
-    fig, axes = _figure(len(methods), n, size=(4.2 * n, 4.2 * len(methods)), squeeze=False)
+    fig, axes = new_figure(len(methods), n, size=(4.2 * n, 4.2 * len(methods)), squeeze=False)
     for r, name in enumerate(methods):
         res = results[name]
         for c, centre in enumerate(centres):
@@ -219,25 +227,23 @@ def fig_local_maps(run: RunData, results: dict, centres: np.ndarray, out: Path) 
             ax.title.set_fontsize(9)
     fig.suptitle("Fig. 10: fused features of the three methods in 2D, four local maps")
     fig.tight_layout()
-    return [p9, _save(fig, out / "fig10_local_maps_2d.png")]
+    return [p9, save_png(fig, out / "fig10_local_maps_2d.png")]
 
 
-def fig_tile_overlays(run: RunData, results: dict, centres: np.ndarray, out: Path) -> Path:
+def fig_tile_overlays(run: FigureInputs, results: dict, centres: np.ndarray, out: Path) -> Path:
     from featmap.plotting.basemap import add_basemap
 
-    cfg = run.config.output
-    fig, axes = _figure(2, 2, size=(13, 13))
-    styles = LINESTYLES
+    fig, axes = new_figure(2, 2, size=(13, 13))
     ok_all = True
     for ax, centre, letter in zip(axes.flat, centres, "abcd"):
         view_box(ax, centre, LOCAL_HALF_M)
-        ok = add_basemap(ax, run.frame, cfg.tile_source, cfg.tile_cache_dir, cfg.tile_timeout_s)
+        ok = run.frame is not None and add_basemap(ax, run.frame, run.tiles)
         ok_all &= ok
         if not ok:
             draw_truth(ax, run.truth, label="ground truth (no tiles)")
         for name, res in results.items():
             sel = _in_box(res.segments, centre, LOCAL_HALF_M)
-            draw_segments(ax, res.segments[sel], method_color(name), lw=2.5, linestyles=styles.get(name, "-"),
+            draw_segments(ax, res.segments[sel], method_color(name), lw=2.5, linestyles=method_linestyle(name),
                           label=f"{method_label(name)} ({int(sel.sum())})", zorder=3)
         if len(run.trajectory):
             near = np.abs(run.trajectory - centre).max(1) < LOCAL_HALF_M
@@ -246,10 +252,10 @@ def fig_tile_overlays(run: RunData, results: dict, centres: np.ndarray, out: Pat
         finish_map_axes(ax, f"({letter}) local map {letter}")
     fig.suptitle("Fig. 11: fused features over map tiles" + ("" if ok_all else " (tiles unreachable: drawn over ground truth)"))
     fig.tight_layout()
-    return _save(fig, out / "fig11_local_maps_tiles.png")
+    return save_png(fig, out / "fig11_local_maps_tiles.png")
 
 
-def fig_truth_comparison(run: RunData, results: dict, out: Path) -> Path | None:
+def fig_truth_comparison(run: FigureInputs, results: dict, out: Path) -> Path | None:
     from matplotlib.patches import Rectangle
 
     truth = run.truth
@@ -262,14 +268,14 @@ def fig_truth_comparison(run: RunData, results: dict, out: Path) -> Path | None:
             seen.add(lab)
             vertices.append((lab, p))
     vertices = sorted(vertices)[:4] if vertices else []
-    fig = _figure(size=(16, 9))[0]
+    fig = new_figure(size=(16, 9))[0]
     fig.clf()
     grid = fig.add_gridspec(2, 4)
     main = fig.add_subplot(grid[:, :2])
     draw_truth(main, truth)
     order = sorted(results, key=lambda m: m == "proposed")      # the proposed method on top
     for name in order:
-        draw_method(main, name, results[name].segments, lw=1.5, linestyles=LINESTYLES.get(name, "-"))
+        draw_method(main, name, results[name].segments, lw=1.5, linestyles=method_linestyle(name))
     for lab, p in vertices:
         main.annotate(lab, p, fontsize=14, fontweight="bold", xytext=(6, 6), textcoords="offset points")
         main.add_patch(Rectangle(p - 1.5, 3, 3, fill=False, ec="g", lw=1.5))
@@ -283,7 +289,7 @@ def fig_truth_comparison(run: RunData, results: dict, out: Path) -> Path | None:
         ax = fig.add_subplot(grid[k // 2, 2 + k % 2])
         draw_truth(ax, truth)
         for name in order:
-            draw_method(ax, name, results[name].segments, endpoints=True, linestyles=LINESTYLES.get(name, "-"))
+            draw_method(ax, name, results[name].segments, endpoints=True, linestyles=method_linestyle(name))
         view_box(ax, p, 1.5)
         ax.set_aspect("equal", adjustable="box")
         ax.set_title(f"vertex {lab} (zoom)", fontsize=9)
@@ -292,67 +298,37 @@ def fig_truth_comparison(run: RunData, results: dict, out: Path) -> Path | None:
         ax.tick_params(labelsize=6)
         add_scalebar(ax, 0.5)
     fig.tight_layout()
-    return _save(fig, out / "fig13_14_truth_vs_fused.png")
+    return save_png(fig, out / "fig13_14_truth_vs_fused.png")
 
 
-# --- tables --------------------------------------------------------------------------------------------
-
-def _md_table(header: list[str], rows: list[list]) -> str:
-    def cell(v):
-        return "-" if v is None else (f"{v:.4f}" if isinstance(v, float) else str(v))
-
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in rows]
-    return "\n".join(lines) + "\n"
-
-
-def _csv_table(header: list[str], rows: list[list]) -> str:
+def write_local_map_counts(results: dict, centres: np.ndarray, out: Path) -> Path:
+    """``fig10_counts.csv``: fused features per method in each local map of Figs. 9-11 and in the whole map."""
     buf = io.StringIO()
-    import csv
-
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(header)
-    w.writerows([["" if v is None else v for v in row] for row in rows])
-    return buf.getvalue()
-
-
-def write_tables(run: RunData, results: dict, centres: np.ndarray, out: Path) -> list[Path]:
-    methods = list(results)
-    header = ["map"] + methods
-    rows = [[f"local map {letter}"] + [int(_in_box(results[m].segments, c, LOCAL_HALF_M).sum()) for m in methods]
-            for letter, c in zip("abcd", centres)]
-    rows.append(["global map"] + [len(results[m].segments) for m in methods])
-    paths = [atomic_write_text(out / "table1_counts.csv", _csv_table(header, rows)),
-             atomic_write_text(out / "table1_counts.md", "Table 1: number of fused features\n\n" + _md_table(header, rows))]
-    sums = {m: run.metrics["methods"][m].get("vertex_error_sum_m") or {} for m in methods}
-    labels = sorted({lab for s in sums.values() for lab in s})
-    rows2 = [[f"{lab} (m)"] + [sums[m].get(lab) for m in methods] for lab in labels]
-    paths += [atomic_write_text(out / "table2_vertex_errors.csv", _csv_table(["vertex"] + methods, rows2)),
-              atomic_write_text(out / "table2_vertex_errors.md", "Table 2: vertex error sums (m)\n\n"
-                                + (_md_table(["vertex"] + methods, rows2) if rows2 else "(no labelled vertices in this run's ground truth)\n"))]
-    rows3 = [["time (s)"] + [run.metrics["methods"][m]["seconds"] for m in methods]]
-    paths += [atomic_write_text(out / "table3_time.csv", _csv_table([""] + methods, rows3)),
-              atomic_write_text(out / "table3_time.md", "Table 3: fusion time (s)\n\n" + _md_table([""] + methods, rows3))]
-    return paths
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(["map"] + list(results))
+    for letter, c in zip("abcd", centres):
+        writer.writerow([f"local map {letter}"] + [int(_in_box(r.segments, c, LOCAL_HALF_M).sum()) for r in results.values()])
+    writer.writerow(["global map"] + [len(r.segments) for r in results.values()])
+    return atomic_write_text(out / "fig10_counts.csv", buf.getvalue())
 
 
-def make_figures(run: RunData, out: str | Path) -> list[Path]:
-    """Every figure and table for one run, written into ``out``; returns the paths."""
+def make_figures(run: FigureInputs, out: str | Path) -> list[Path]:
+    """Every figure for one run, written into ``out``; returns the paths."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    results = {name: fuse(name, run.segments.segments, run.segments.scan, run.config) for name in run.fused}
-    centres = local_map_centres(run)
+    results = {name: fuse(name, run.segments.segments, run.segments.scan, run.fusion) for name in run.methods}
+    centres = local_map_centres(run, results)
     paths = fig_feature_circles(run, out)
     if "proposed" in results:
         paths.append(fig_cluster_fusion(run, results["proposed"], out))
         paths.append(fig_corner_optimisation(run, results["proposed"], out))
-    paths.append(fig_global_map(run, out))
+    paths.append(fig_global_map(run, results, out))
     paths += fig_local_maps(run, results, centres, out)
+    paths.append(write_local_map_counts(results, centres, out))
     with warnings.catch_warnings():
         warnings.simplefilter("always")
         paths.append(fig_tile_overlays(run, results, centres, out))
     p = fig_truth_comparison(run, results, out)
     if p is not None:
         paths.append(p)
-    paths += write_tables(run, results, centres, out)
     return paths

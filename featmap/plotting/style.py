@@ -1,22 +1,58 @@
-"""Colours, labels and small decorations shared by every figure."""
+"""Colours, labels and small decorations shared by every figure and map.
+
+Methods are drawn in the colour, line style and title of their entry in the fusion registry
+(:data:`featmap.fusion.METHODS`); the other layers use the colours below.
+"""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
-METHOD_COLORS = {"proposed": "#d62728", "meanshift": "#1f77b4", "density": "#2ca02c"}
-METHOD_LABELS = {"proposed": "Proposed (three criteria)", "meanshift": "Competing 1: mean shift",
-                 "density": "Competing 2: density clustering"}
-TRUTH_COLOR = "0.35"
+from featmap.fusion import FUSION_METHODS
+from featmap.io.atomic import atomic_path
+
+TRUTH_COLOR = "#595959"
 SEGMENT_COLOR = "#ff7f0e"
+TRAJECTORY_COLOR = "#e377c2"
+OTHER_COLOR = "#9467bd"
+DPI = 100
 
 
 def method_color(name: str) -> str:
-    return METHOD_COLORS.get(name, "#9467bd")
+    method = FUSION_METHODS.get(name)
+    return method.color if method else OTHER_COLOR
 
 
 def method_label(name: str) -> str:
-    return METHOD_LABELS.get(name, name)
+    method = FUSION_METHODS.get(name)
+    return method.title if method else name
+
+
+def method_linestyle(name: str) -> str:
+    method = FUSION_METHODS.get(name)
+    return method.linestyle if method else "-"
+
+
+def save_png(fig, path: str | Path, dpi: int = DPI) -> Path:
+    """Save a matplotlib figure as PNG atomically and close it."""
+    import matplotlib.pyplot as plt
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png")
+    plt.close(fig)
+    return Path(path)
+
+
+def new_figure(nrows: int = 1, ncols: int = 1, size=(10, 8), **kwargs):
+    """A figure on the non-interactive Agg backend: ``(fig, axes)`` as ``plt.subplots`` returns them."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt.subplots(nrows, ncols, figsize=size, **kwargs)
 
 
 def draw_segments(ax, segments: np.ndarray, color, lw: float = 1.5, label: str | None = None, **kwargs):

@@ -6,16 +6,18 @@ from pathlib import Path
 
 import numpy as np
 
-from featmap.io.atomic import atomic_path
-from featmap.plotting.style import method_color, method_label
+from featmap.plotting.style import method_color, method_label, new_figure, save_png
 
 
-def _save(fig, path: Path) -> None:
-    import matplotlib.pyplot as plt
-
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
+def pareto_front(points: np.ndarray) -> np.ndarray:
+    """Indices of the non-dominated points of (K, 2) ``(cost, benefit)``: lower cost, higher benefit."""
+    order = np.lexsort((-points[:, 1], points[:, 0]))
+    front, best = [], -np.inf
+    for i in order:
+        if points[i, 1] > best:
+            front.append(i)
+            best = points[i, 1]
+    return np.asarray(front, dtype=int)
 
 
 def _mean_table(rows, x_key, y_key, value):
@@ -31,16 +33,12 @@ def _mean_table(rows, x_key, y_key, value):
 
 
 def plot_sweep(rows: list[dict], keys: list[str], out: Path, metric: str) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """Heatmap over delta x gamma, a curve per swept key and the Pareto plot, as PNGs in ``out``."""
     paths = []
     proposed = [r for r in rows if r["method"] == "proposed"]
     dkey, gkey = "fusion.proposed.delta_deg", "fusion.proposed.gamma"
     if proposed and dkey in keys and gkey in keys:
-        fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))
+        fig, axes = new_figure(1, 2, size=(13, 5.5))
         for ax, value in zip(axes, ("count", metric)):
             xs, ys, grid = _mean_table(proposed, dkey, gkey, value)
             im = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis")
@@ -55,11 +53,11 @@ def plot_sweep(rows: list[dict], keys: list[str], out: Path, metric: str) -> lis
                     if np.isfinite(grid[i, j]):
                         ax.text(j, i, f"{grid[i, j]:.3g}", ha="center", va="center", fontsize=7, color="w")
         fig.tight_layout()
-        _save(fig, out / "heatmap_delta_gamma.png")
+        save_png(fig, out / "heatmap_delta_gamma.png")
         paths.append(out / "heatmap_delta_gamma.png")
     curve_keys = [k for k in keys if len({r.get(k) for r in rows if k in r}) >= 2]
     if curve_keys:
-        fig, axes = plt.subplots(len(curve_keys), 2, figsize=(12, 3.6 * len(curve_keys)), squeeze=False)
+        fig, axes = new_figure(len(curve_keys), 2, size=(12, 3.6 * len(curve_keys)), squeeze=False)
         for row_axes, key in zip(axes, curve_keys):
             method = key.split(".")[1]
             sub = [r for r in rows if key in r and (r["method"] == method or method == "corners")]
@@ -74,17 +72,15 @@ def plot_sweep(rows: list[dict], keys: list[str], out: Path, metric: str) -> lis
             row_axes[0].set_title(f"{key}: count (mean over other keys)")
             row_axes[1].set_title(f"{key}: {metric}")
         fig.tight_layout()
-        _save(fig, out / "curves.png")
+        save_png(fig, out / "curves.png")
         paths.append(out / "curves.png")
     scored = [r for r in rows if r.get("count_ratio") is not None and r.get("f1") is not None]
     if scored:
-        fig, ax = plt.subplots(figsize=(9, 7))
+        fig, ax = new_figure(size=(9, 7))
         pts = np.array([[r["count_ratio"], r["f1"]] for r in scored])
         for method in sorted({r["method"] for r in scored}):
             m = np.array([r["method"] == method for r in scored])
             ax.scatter(pts[m, 0], pts[m, 1], color=method_color(method), label=method_label(method), alpha=0.7)
-        from featmap.sweep import pareto_front
-
         front = pareto_front(pts)
         ax.plot(pts[front, 0], pts[front, 1], "k--", lw=1, label="Pareto front")
         ax.axvline(1.0, color="0.6", lw=0.8)
@@ -93,6 +89,6 @@ def plot_sweep(rows: list[dict], keys: list[str], out: Path, metric: str) -> lis
         ax.set_title("Conciseness against accuracy across all methods and settings")
         ax.grid(True, alpha=0.3)
         ax.legend()
-        _save(fig, out / "pareto.png")
+        save_png(fig, out / "pareto.png")
         paths.append(out / "pareto.png")
     return paths

@@ -35,6 +35,7 @@ from featmap.geo import GeoFrame, latlon_to_mercator, mercator_to_latlon
 from featmap.io.atomic import atomic_write_text
 from featmap.io.kitti_raw import (drive_paths, format_oxts_packet, write_calib_file, write_timestamps,
                                   write_velo_bin)
+from featmap.io.sim_truth import COVERAGE_BIN_M, observed_intervals, write_coverage
 from featmap.simulation.scene import REFLECTANCE, build_scene, cast
 from featmap.simulation.sensors import SensorPreset
 from featmap.simulation.trajectory import sample_poses
@@ -42,8 +43,6 @@ from featmap.simulation.worlds import World, _open_ring
 
 SIM_DATE = "2000_01_01"
 """Simulated drives use this date, so they never collide with a real KITTI drive."""
-COVERAGE_BIN_M = 0.5
-MIN_BIN_RETURNS = 3
 
 
 def rotation_xyz(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -234,7 +233,7 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
         write_timestamps(drive_tmp / sub / "timestamps.txt", seconds, start)
     (drive_tmp / "oxts" / "dataformat.txt").write_text(_OXTS_DATAFORMAT)
     write_calibration(calib_dir, T_velo_imu)
-    _write_coverage(drive_tmp / "truth" / "coverage.npz", per_frame, bin_offset)
+    write_coverage(drive_tmp / "truth" / "coverage.npz", per_frame, bin_offset)
     _write_truth(drive_tmp / "truth", world, edges, coverage, bin_offset, n_bins, p0, geo, xy, yaw,
                  err_x, err_y, err_yaw, {
                      "world": world.name, "world_source": world.source, "sensor": sensor.name,
@@ -244,34 +243,6 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
                  })
     os.replace(drive_tmp, final_dir)
     return SimulatedDrive(out_root, SIM_DATE, drive_id, n)
-
-
-def _write_coverage(path: Path, per_frame, bin_offset: np.ndarray) -> None:
-    """Which wall bins each frame saw (for scoring a selection of frames): frame, bin, count + bin_offset."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    cat = (lambda i: np.concatenate([p[i] for p in per_frame]) if per_frame else np.zeros(0, np.int32))
-    with open(path, "wb") as fh:
-        np.savez_compressed(fh, frame=cat(0), bin=cat(1), count=cat(2), bin_offset=bin_offset.astype(np.int64),
-                            bin_m=np.float64(COVERAGE_BIN_M), min_bin_returns=np.int64(MIN_BIN_RETURNS))
-
-
-def observed_intervals(counts: np.ndarray, min_returns: int = MIN_BIN_RETURNS, bin_m: float = COVERAGE_BIN_M,
-                       length: float | None = None) -> list[tuple[float, float]]:
-    """Merge coverage bins with at least ``min_returns`` hits into intervals (metres along the wall)."""
-    seen = counts >= min_returns
-    out = []
-    k = 0
-    while k < len(seen):
-        if seen[k]:
-            j = k
-            while j + 1 < len(seen) and seen[j + 1]:
-                j += 1
-            end = (j + 1) * bin_m if length is None else min((j + 1) * bin_m, length)
-            out.append((k * bin_m, end))
-            k = j + 1
-        else:
-            k += 1
-    return out
 
 
 def _write_truth(folder: Path, world: World, edges, coverage, bin_offset, n_bins, p0, geo: GeoFrame,

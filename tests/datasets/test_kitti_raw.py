@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from featmap.datasets import KittiRawDataset, parse_drive, parse_frames
+from featmap.datasets import KittiRawDataset, ScanSource, SourceSpec, open_source, parse_drive, parse_frames
 from featmap.errors import DatasetError
 from featmap.io.kitti_raw import (OXTS_FIELDS, format_oxts_packet, read_calib_file, read_oxts_packet,
                                   read_rigid_calib, read_velo_bin, write_velo_bin)
@@ -16,13 +16,32 @@ def test_items_match_pykitti_poses(case1_drive):
     raw = pykitti.raw(str(case1_drive.root), case1_drive.date, case1_drive.drive_id)
     item = ds[1]
     expected = raw.oxts[10].T_w_imu @ np.linalg.inv(raw.calib.T_velo_imu)
-    assert item.frame == 10
-    assert np.allclose(item.T_w_velo, expected)
+    assert item.index == 10
+    assert np.allclose(item.T_world_sensor, expected)
+    assert np.allclose(ds.poses()[1], expected)
     assert item.points.shape[1] == 4 and item.points.dtype == np.float32
     assert item.timestamp == pytest.approx(1.0)
     # a frame selection does not move the world frame: it stays at the drive's first packet
-    assert np.allclose(KittiRawDataset(case1_drive.root, case1_drive.drive)[10].T_w_velo, item.T_w_velo)
-    assert ds.truth_dir is not None
+    assert np.allclose(KittiRawDataset(case1_drive.root, case1_drive.drive)[10].T_world_sensor, item.T_world_sensor)
+
+
+def test_it_is_a_scan_source_opened_by_the_registry(case1_drive):
+    folder = case1_drive.drive_dir
+    ds = open_source(SourceSpec("kitti_raw", str(folder), "0:10:3"))
+    assert isinstance(ds, ScanSource)
+    assert ds.kind == "kitti_raw" and ds.dimension == 3 and ds.name == case1_drive.drive
+    assert ds.location == folder.resolve() and ds.frames == [0, 3, 6, 9]
+    assert ds.geo_origin is not None and 48.9 < ds.geo_origin.lat0_deg < 49.1
+    with pytest.raises(DatasetError, match="unknown format; allowed: kitti_raw, simulated"):
+        open_source(SourceSpec("velodyne_pcap", str(folder)))
+
+
+def test_frame_selections_past_the_end_are_errors(case1_drive):
+    with pytest.raises(DatasetError, match=r"--frames 25:100: .* has 40 frames \(0..39\)"):
+        KittiRawDataset(case1_drive.root, case1_drive.drive, "25:100")
+    with pytest.raises(DatasetError, match=r"--frames 50: .* has 40 frames"):
+        KittiRawDataset(case1_drive.root, case1_drive.drive, "50")
+    assert KittiRawDataset(case1_drive.root, case1_drive.drive, "30:").frames == list(range(30, 40))
 
 
 def test_parse_drive_and_frames():
@@ -56,6 +75,10 @@ def _drive_dir(root, drive):
     (lambda d, c: (c / "calib_imu_to_velo.txt").write_text("R: 1 0 0\n"), r"calib_imu_to_velo.txt: expected 'R:' with 9 values"),
     (lambda d, c: (c / "calib_velo_to_cam.txt").unlink(), r"calib_velo_to_cam.txt: calibration file missing"),
     (lambda d, c: (c / "calib_cam_to_cam.txt").write_bytes(b"\xff\xfe\x00garbage"), r"calib_cam_to_cam.txt: cannot read"),
+    (lambda d, c: (c / "calib_imu_to_velo.txt").write_text("R: 0 0 0 0 0 0 0 0 0\nT: 0 0 0\n"),
+     r"calib_imu_to_velo.txt: 'R' is not a rotation matrix"),
+    (lambda d, c: (c / "calib_imu_to_velo.txt").write_text("R: 1 0 0 0 1 0 0 0 1\nT: nan 0 0\n"),
+     r"calib_imu_to_velo.txt: 'R' and 'T' must be finite"),
 ])
 def test_bad_drives_fail_in_one_line_naming_the_file(drive_copy, damage, match):
     root, drive = drive_copy
@@ -83,7 +106,7 @@ def test_skip_bad_scans_leaves_them_out(drive_copy):
     (d / "oxts/data/0000000007.txt").write_text("1 2 3\n")
     ds = KittiRawDataset(root, drive, skip_bad_scans=True)
     assert len(ds) == 38 and 3 not in ds.frames and 7 not in ds.frames
-    assert set(ds.skipped) == {3, 7}
+    assert set(ds.notes.skipped) == {3, 7}
 
 
 def test_poor_gps_is_flagged(drive_copy):
@@ -92,7 +115,7 @@ def test_poor_gps_is_flagged(drive_copy):
     packet = read_oxts_packet(path)
     packet.update(numsats=2, pos_accuracy=3.0)
     path.write_text(format_oxts_packet(packet))
-    assert KittiRawDataset(root, drive).poor_gps == [5]
+    assert KittiRawDataset(root, drive).notes.flags == {"poor_gps": [5]}
 
 
 def test_parsers_on_real_kitti_files():

@@ -3,13 +3,12 @@
 import numpy as np
 import pytest
 
-from featmap.config import DensityConfig, FeatmapConfig, MeanShiftConfig
-from featmap.fusion import fuse
+from featmap.fusion import FusionConfig, fuse
 from featmap.fusion.base import cluster_orientations, orientation_embedding
-from featmap.fusion.density import fuse_density
-from featmap.fusion.meanshift import fuse_meanshift
+from featmap.fusion.density import DensityConfig, fuse_density
+from featmap.fusion.meanshift import MeanShiftConfig, fuse_meanshift
 from featmap.fusion.proposed import fuse_proposed
-from featmap.synthetic import observe_walls
+from featmap.simulation.segments import observe_walls
 
 
 def _street(rng, gap=15.0):
@@ -64,19 +63,32 @@ def test_large_bandwidth_merges_the_two_sides_of_a_street_but_the_proposed_metho
     assert len(wide_density.segments) == 1 and 5.0 < wide_density.segments[0, [1, 3]].mean() < 10.0
     # the proposed method keeps the walls apart on the same input, whatever its delta and gamma
     for delta in (5.0, 20.0):
-        proposed = fuse_proposed(segs, scan, FeatmapConfig().fusion.proposed.model_copy(update={"delta_deg": delta}))
+        proposed = fuse_proposed(segs, scan, FusionConfig().proposed.model_copy(update={"delta_deg": delta}))
         assert len(proposed.segments) == 2
         assert sorted(proposed.segments[:, [1, 3]].mean(axis=1)) == pytest.approx([0.0, 15.0], abs=0.05)
 
 
 def test_competing_methods_keep_every_cluster():
-    # no support filter: a fence seen twice, 1.5 m in front of a wall, survives in the competitors or
-    # (mean shift, 3 m bandwidth) drags part of the wall towards it: the paper's Figure 5; not in ours
+    # no support filter: a fence seen twice, 1.5 m in front of a wall. Density clustering keeps it as a
+    # feature of its own; mean shift (3 m bandwidth) merges it into a wall cluster and drags that feature
+    # off the wall (the paper's Figure 5); the proposed method drops it (support 2 < 4) and keeps the wall.
     rng = np.random.default_rng(4)
     segs, scan = observe_walls(np.array([0.0, 0.0, 40.0, 0.0]), 20, 0.03, rng)
     segs = np.vstack([segs, [[15.0, 1.5, 19.0, 1.5], [15.1, 1.52, 19.1, 1.5]]])
     scan = np.concatenate([scan, [3, 4]])
-    assert len(fuse_proposed(segs, scan).segments) == 1
-    for fn in (fuse_meanshift, fuse_density):
-        result = fn(segs, scan)
-        assert (result.segments[:, [1, 3]].mean(axis=1) > 0.1).any(), fn.__name__
+    fence = [len(segs) - 2, len(segs) - 1]
+
+    proposed = fuse_proposed(segs, scan)
+    assert len(proposed.segments) == 1 and np.abs(proposed.segments[0, [1, 3]]).max() < 0.05
+    assert (proposed.labels[fence] == -1).all()
+
+    density = fuse_density(segs, scan)
+    f = density.labels[fence[0]]
+    assert density.labels[fence[1]] == f and density.support[f] == 2
+    assert density.segments[f, [1, 3]] == pytest.approx([1.5, 1.5], abs=0.05)
+    assert (density.labels[:-2] != f).all()
+
+    meanshift = fuse_meanshift(segs, scan)
+    f = meanshift.labels[fence[0]]
+    assert meanshift.support[f] > 2                               # merged with wall segments ...
+    assert 0.1 < meanshift.segments[f, [1, 3]].mean() < 1.4      # ... and dragged off the wall

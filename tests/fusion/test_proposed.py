@@ -1,11 +1,10 @@
 import numpy as np
 import pytest
 
-from featmap.config import FeatmapConfig, ProposedConfig
-from featmap.fusion import fuse
-from featmap.fusion.proposed import evaluate_pairs, fuse_proposed
+from featmap.fusion import FusionConfig, fuse
+from featmap.fusion.proposed import ProposedConfig, evaluate_pairs, fuse_proposed
 from featmap.geometry import point_segment_distance
-from featmap.synthetic import observe_walls
+from featmap.simulation.segments import observe_walls
 
 
 def _max_dist_to_line(fused, wall):
@@ -73,7 +72,7 @@ def test_building_corner_after_corner_optimisation():
     walls = np.array([[0.0, 10.0, 10.0, 10.0], [10.0, 10.0, 10.0, -5.0]])
     segs, scan = observe_walls(walls, 20, 0.03, rng, min_fraction=0.9, first_scan=np.array([0, 0]))
     for mode in ("midpoint", "intersection"):
-        cfg = FeatmapConfig.model_validate({"fusion": {"corners": {"mode": mode}}})
+        cfg = FusionConfig.model_validate({"corners": {"mode": mode}})
         result = fuse("proposed", segs, scan, cfg)
         assert len(result.segments) == 2
         ends = result.segments.reshape(-1, 2)

@@ -3,11 +3,10 @@
 import numpy as np
 import pytest
 
-from featmap.config import FeatmapConfig
 from featmap.errors import ConfigError
-from featmap.fusion import FUSION_METHODS, fuse
+from featmap.fusion import FUSION_METHODS, FusionConfig, fuse
 from featmap.fusion.registry import get_method, resolve_methods
-from featmap.synthetic import observe_walls
+from featmap.simulation.segments import observe_walls
 
 
 @pytest.mark.parametrize("name", list(FUSION_METHODS))
@@ -41,7 +40,22 @@ def test_unknown_method_names_allowed_values():
     assert resolve_methods("density,proposed") == ["density", "proposed"]
 
 
-def test_every_method_has_a_config_section():
-    cfg = FeatmapConfig()
+def test_every_method_has_its_config_section_with_its_defaults():
+    cfg = FusionConfig()
     for name, method in FUSION_METHODS.items():
-        assert method.config_of(cfg) is getattr(cfg.fusion, name)
+        section = getattr(cfg, name)
+        assert type(section) is method.config_type and section == method.config_type()
+    assert set(FusionConfig.model_fields) == set(FUSION_METHODS) | {"corners"}
+
+
+@pytest.mark.parametrize("name", list(FUSION_METHODS))
+def test_every_method_takes_its_own_section(name):
+    """A section's setting reaches its method: an angle tolerance of 0.5 deg splits two views 1.5 deg apart
+    and merges them at 10 deg."""
+    segs = np.array([[0, 0, 20, 0], [0, 0, 20, 20 * np.tan(np.deg2rad(1.5))]] * 4, float)
+    scan = np.arange(len(segs))
+    key = {"proposed": "delta_deg", "meanshift": "orientation_bandwidth_deg", "density": "orientation_bandwidth_deg"}[name]
+    tight = FusionConfig.model_validate({name: {key: 0.5, **({"min_support": 1} if name == "proposed" else {})}})
+    loose = FusionConfig.model_validate({name: {key: 10.0, **({"min_support": 1} if name == "proposed" else {})}})
+    assert len(fuse(name, segs, scan, tight)) == 2
+    assert len(fuse(name, segs, scan, loose)) == 1

@@ -6,7 +6,8 @@ import numpy as np
 from featmap.geo import GeoFrame
 from featmap.io.geojson import read_segments_geojson, write_fused_geojson
 from featmap.io.html_map import write_html_map
-from featmap.io.kml import read_kml, write_kml
+from featmap.io.kml import kml_color, read_kml, write_kml
+from featmap.io.layers import MapLayer
 
 FRAME = GeoFrame(49.011, 8.424)
 SEGS = np.array([[0.0, 0.0, 30.0, 0.0], [30.0, 0.0, 30.0, -20.0], [-5.5, 12.25, 3.0, 40.0]])
@@ -27,22 +28,38 @@ def test_geojson_is_rfc7946_and_round_trips(tmp_path):
 
 
 def test_kml_parses_and_round_trips(tmp_path):
-    path = write_kml(tmp_path / "m.kml", {"proposed": (SEGS, np.array([1, 2, 3])), "density": (SEGS[:1], None)},
-                     FRAME, trajectory=np.array([[0.0, -5.0], [10.0, -5.0], [20.0, -6.0]]))
+    layers = [MapLayer("proposed", SEGS, np.array([1, 2, 3]), "#d62728"), MapLayer("density", SEGS[:1], None, "#2ca02c")]
+    path = write_kml(tmp_path / "m.kml", layers, FRAME, trajectory=np.array([[0.0, -5.0], [10.0, -5.0], [20.0, -6.0]]))
     root = ET.parse(path).getroot()
     assert root.tag.endswith("kml")
-    layers = read_kml(path, FRAME)
-    assert set(layers) == {"proposed", "density", "trajectory"}
-    assert np.abs(layers["proposed"] - SEGS).max() < 1e-3 and len(layers["density"]) == 1
+    back = read_kml(path, FRAME)
+    assert set(back) == {"proposed", "density", "trajectory"}
+    assert np.abs(back["proposed"] - SEGS).max() < 1e-3 and len(back["density"]) == 1
+    text = path.read_text()
+    assert kml_color("#d62728") == "ff2827d6" and "ff2827d6" in text and "ff2ca02c" in text
+
+
+def test_kml_of_a_missing_or_broken_file_is_one_line(tmp_path):
+    import pytest
+
+    from featmap.errors import InputFileError
+
+    bad = tmp_path / "bad.kml"
+    bad.write_text("<kml><Folder>")
+    for path in (bad, tmp_path / "missing.kml"):
+        with pytest.raises(InputFileError, match="not a readable KML file"):
+            read_kml(path, FRAME)
 
 
 def test_html_map_has_every_layer(tmp_path):
-    path = write_html_map(tmp_path / "m.html", {"proposed": (SEGS, np.array([1, 2, 3])), "meanshift": (SEGS, np.array([1, 1, 1])),
-                                                "density": (SEGS, np.array([4, 4, 4]))}, FRAME,
-                          trajectory=np.array([[0.0, -5.0], [10.0, -5.0]]), truth_walls=SEGS)
+    layers = [MapLayer("truth", SEGS, None, "#595959"), MapLayer("proposed", SEGS, np.array([1, 2, 3]), "#d62728"),
+              MapLayer("meanshift", SEGS, np.array([1, 1, 1]), "#1f77b4"), MapLayer("density", SEGS, np.array([4, 4, 4]), "#2ca02c")]
+    path = write_html_map(tmp_path / "m.html", layers, FRAME, trajectory=np.array([[0.0, -5.0], [10.0, -5.0]]))
     html = path.read_text()
-    for layer in ("proposed", "meanshift", "density", "trajectory", "truth"):
-        assert f'"{layer}"' in html or f"{layer}</span>" in html or layer in html
-    assert html.count("L.polyline") >= 3 * 3 + 3 + 1
+    for layer in ("proposed", "meanshift", "density", "trajectory", "truth"):   # one named overlay each
+        assert f'"{layer}" : feature_group_' in html or f'"{layer}": feature_group_' in html, layer
+    assert html.count("L.polyline") == 4 * 3 + 1
+    for color in ("#595959", "#d62728", "#1f77b4", "#2ca02c"):
+        assert html.count(f'"color": "{color}"') == 3, color
     assert "support 4 segments" in html and "length 30.00 m" in html
     assert "L.control.layers" in html

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from featmap.geo import GeoFrame
-from featmap.plotting.basemap import BasemapWarning, add_basemap
+from featmap.plotting.basemap import BasemapWarning, Tiles, add_basemap
 
 
 class TileHandler(BaseHTTPRequestHandler):
@@ -54,7 +54,7 @@ def _axes():
 
 def test_tiles_come_from_the_local_server_and_land_in_place(tile_server, tmp_path):
     fig, ax = _axes()
-    assert add_basemap(ax, GeoFrame(49.011, 8.424), tile_server, cache_dir=tmp_path / "tiles", timeout_s=5)
+    assert add_basemap(ax, GeoFrame(49.011, 8.424), Tiles(tile_server, str(tmp_path / "tiles"), 5))
     assert TileHandler.requests and all(r.endswith(".png") for r in TileHandler.requests)
     assert len(ax.images) == 1
     left, right, bottom, top = ax.images[0].get_extent()
@@ -63,14 +63,14 @@ def test_tiles_come_from_the_local_server_and_land_in_place(tile_server, tmp_pat
     # the cache serves the second plot without asking the server again
     n = len(TileHandler.requests)
     fig2, ax2 = _axes()
-    assert add_basemap(ax2, GeoFrame(49.011, 8.424), tile_server, cache_dir=tmp_path / "tiles", timeout_s=5)
+    assert add_basemap(ax2, GeoFrame(49.011, 8.424), Tiles(tile_server, str(tmp_path / "tiles"), 5))
     assert len(TileHandler.requests) == n
 
 
 def test_unreachable_tiles_warn_and_the_plot_goes_on():
     fig, ax = _axes()
     with pytest.warns(BasemapWarning, match="basemap unavailable"):
-        assert not add_basemap(ax, GeoFrame(49.011, 8.424), "http://127.0.0.1:9/{z}/{x}/{y}.png", timeout_s=1)
+        assert not add_basemap(ax, GeoFrame(49.011, 8.424), Tiles("http://127.0.0.1:9/{z}/{x}/{y}.png", None, 1))
     assert len(ax.images) == 0
 
 
@@ -79,13 +79,12 @@ def test_figures_of_a_small_run(case1_drive, tmp_path, tile_server):
     from typer.testing import CliRunner
 
     from featmap.cli import app
-    from featmap.config import load_config
     from featmap.datasets import KittiRawDataset
-    from featmap.pipeline import MappingPipeline
+    from featmap.pipeline import MappingPipeline, SegmentStore, load_config
 
     ds = KittiRawDataset(case1_drive.root, case1_drive.drive)
     cfg = load_config(None, [f"output.tile_source={tile_server}", f"output.tile_cache_dir={tmp_path / 'tiles'}"])
-    MappingPipeline(ds, cfg, tmp_path / "run", ["proposed", "meanshift", "density"], cache_dir=tmp_path / "c").run()
+    MappingPipeline(cfg, ["proposed", "meanshift", "density"], SegmentStore(tmp_path / "c")).run(ds, tmp_path / "run")
     for name in ("map.kml", "map.html", "map_overview.png", "segments.geojson", "trajectory.geojson", "truth.geojson"):
         assert (tmp_path / "run" / name).stat().st_size > 100, name
     res = CliRunner().invoke(app, ["figures", str(tmp_path / "run")])
@@ -101,27 +100,30 @@ def test_figures_of_a_small_run(case1_drive, tmp_path, tile_server):
         if size:
             assert img.size == size, name
         assert np.asarray(img.convert("L")).std() > 5, f"{name} looks blank"
-    for table in ("table1_counts", "table2_vertex_errors", "table3_time"):
-        assert (out / f"{table}.csv").read_text().count("\n") >= 2 and (out / f"{table}.md").exists()
-    assert "a (m)" in (out / "table2_vertex_errors.md").read_text()
+    counts = (out / "fig10_counts.csv").read_text().splitlines()
+    assert counts[0] == "map,proposed,meanshift,density" and counts[-1].startswith("global map,")
+    # Tables 1-3 are the run's comparison: counts, vertex error sums of the labelled vertices, times
+    comparison = (tmp_path / "run" / "comparison.md").read_text()
+    assert "vertex_a_m" in comparison and "seconds" in comparison and "| proposed |" in comparison
     assert any("/" in r for r in TileHandler.requests)          # Fig. 11 used the local tile server
 
 
 def test_figures_without_tiles_still_appear(case1_drive, tmp_path):
-    from featmap.config import load_config
     from featmap.datasets import KittiRawDataset
-    from featmap.io.run_folder import load_run
-    from featmap.pipeline import MappingPipeline
-    from featmap.plotting.figures import fig_tile_overlays, local_map_centres
+    from featmap.fusion import fuse
+    from featmap.outputs import tiles_of
+    from featmap.pipeline import MappingPipeline, SegmentStore, load_config
+    from featmap.pipeline.run_folder import load_run
+    from featmap.plotting.figures import FigureInputs, fig_tile_overlays, local_map_centres
 
     ds = KittiRawDataset(case1_drive.root, case1_drive.drive, slice(0, 20))
     cfg = load_config(None, ["output.tile_source=http://127.0.0.1:9/{z}/{x}/{y}.png", "output.tile_timeout_s=1"])
     with pytest.warns(BasemapWarning):
-        MappingPipeline(ds, cfg, tmp_path / "run", ["proposed"], cache_dir=tmp_path / "c").run()
+        MappingPipeline(cfg, ["proposed"], SegmentStore(tmp_path / "c")).run(ds, tmp_path / "run")
     run = load_run(tmp_path / "run")
-    from featmap.fusion import fuse
-
-    results = {"proposed": fuse("proposed", run.segments.segments, run.segments.scan, run.config)}
+    inputs = FigureInputs(run.segments, ["proposed"], run.config.fusion, run.trajectory, run.frame, run.truth,
+                          tiles_of(run.config.output))
+    results = {"proposed": fuse("proposed", run.segments.segments, run.segments.scan, run.config.fusion)}
     with pytest.warns(BasemapWarning):
-        path = fig_tile_overlays(run, results, local_map_centres(run), tmp_path)
+        path = fig_tile_overlays(inputs, results, local_map_centres(inputs, results), tmp_path)
     assert path.stat().st_size > 10_000

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from featmap.config import ExtractionConfig
-from featmap.extraction import extract_segments, segments_to_world
+from featmap.extraction import segments_to_world
+from featmap.extraction.ransac_planes import RansacPlanesConfig, extract_segments
 from featmap.io.kitti_raw import read_velo_bin
 from tests.conftest import shared_data
 
@@ -60,7 +60,7 @@ def test_fences_and_cars_are_not_walls():
     result = extract_segments(scan)
     assert len(result) == 1
     assert result.segments[0, [1, 3]] == pytest.approx([15, 15], abs=0.05)
-    kept = extract_segments(scan, ExtractionConfig(min_top_height_m=0.0, min_vertical_extent_m=0.5))
+    kept = extract_segments(scan, RansacPlanesConfig(min_top_height_m=0.0, min_vertical_extent_m=0.5))
     assert len(kept) == 3
 
 

@@ -21,44 +21,39 @@ Everything is seeded (``seed``), so the same scan gives the same segments.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
+from pydantic import Field
 
-from featmap.config import ExtractionConfig
+from featmap.config import Section
+from featmap.extraction.base import Extractor, ScanSegments
 from featmap.geometry import fit_line_tls
 
 
-@dataclass(frozen=True)
-class ScanSegments:
-    """Wall segments of one scan, in the velodyne frame.
+class RansacPlanesConfig(Section):
+    """Vertical planes by sequential RANSAC (velodyne frame, metres)."""
 
-    Attributes:
-        segments: (K, 4) ``x1, y1, x2, y2`` in metres (velodyne frame, projected to its x-y plane).
-        z_mean: (K,) mean height of each piece's points (velodyne frame): where to lift the endpoints
-            before moving them to the world frame.
-        n_points: (K,) points in each piece (after down-sampling).
-        z_min, z_max: (K,) vertical extent of each piece (velodyne frame).
-        rms: (K,) root-mean-square distance of the piece's points to its fitted line (metres).
-    """
-
-    segments: np.ndarray
-    z_mean: np.ndarray
-    n_points: np.ndarray
-    z_min: np.ndarray
-    z_max: np.ndarray
-    rms: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.segments)
-
-    @staticmethod
-    def empty() -> "ScanSegments":
-        z = np.zeros(0)
-        return ScanSegments(np.zeros((0, 4)), z, np.zeros(0, np.int64), z, z, z)
+    min_range_m: float = Field(2.5, ge=0, description="drop returns closer than this (vehicle body)")
+    max_range_m: float = Field(50.0, gt=0, description="drop returns farther than this (sparse, noisy)")
+    z_min_m: float = Field(-3.0, description="drop returns below this height in the velodyne frame")
+    z_max_m: float = Field(6.0, description="drop returns above this height in the velodyne frame")
+    voxel_size_m: float = Field(0.15, ge=0, description="voxel down-sampling before RANSAC (0 = off)")
+    ground_threshold_m: float = Field(0.15, gt=0, description="RANSAC inlier distance of the ground plane")
+    ground_margin_m: float = Field(0.3, ge=0, description="also drop points this close above the ground plane")
+    plane_threshold_m: float = Field(0.08, gt=0, description="RANSAC inlier distance of a wall plane")
+    ransac_iterations: int = Field(200, ge=10, description="RANSAC iterations per plane")
+    ransac_max_points: int = Field(1200, ge=100, description="RANSAC hypotheses come from a random subset of this many points")
+    max_planes: int = Field(25, ge=1, description="planes tried per scan")
+    max_normal_tilt_deg: float = Field(10.0, ge=0, le=90, description="a wall's normal lies within this of horizontal")
+    min_plane_inliers: int = Field(60, ge=3, description="stop when the best plane has fewer inliers")
+    min_vertical_extent_m: float = Field(1.2, ge=0, description="a wall piece spans at least this in height")
+    min_top_height_m: float = Field(1.85, ge=0, description="a wall piece reaches at least this high above the ground (0 = keep fences and cars)")
+    max_gap_m: float = Field(1.5, gt=0, description="split a plane's inliers where they leave a gap this long")
+    min_segment_length_m: float = Field(1.0, ge=0, description="drop wall pieces shorter than this")
+    min_segment_points: int = Field(25, ge=2, description="drop wall pieces with fewer points")
+    seed: int = Field(0, description="seed for Open3D's RANSAC (reproducible results)")
 
 
-def crop(points: np.ndarray, config: ExtractionConfig) -> np.ndarray:
+def crop(points: np.ndarray, config: RansacPlanesConfig) -> np.ndarray:
     """Keep (N, >=3) points within the range and height limits; returns (M, 3)."""
     xyz = np.asarray(points, dtype=np.float64)[:, :3]
     r = np.hypot(xyz[:, 0], xyz[:, 1])
@@ -92,7 +87,7 @@ def _ransac_plane(xyz: np.ndarray, threshold: float, iterations: int, max_points
     return normal, d, np.flatnonzero(np.abs(xyz @ normal + d) <= threshold)
 
 
-def remove_ground(xyz: np.ndarray, config: ExtractionConfig) -> tuple[np.ndarray, np.ndarray, float]:
+def remove_ground(xyz: np.ndarray, config: RansacPlanesConfig) -> tuple[np.ndarray, np.ndarray, float]:
     """Drop the ground: a near-horizontal RANSAC plane fitted to the lowest points, plus a margin above it.
 
     Returns (remaining points (M, 3), ground unit normal (3,) pointing up, offset d): the height of a
@@ -122,7 +117,7 @@ def split_pieces(t: np.ndarray, max_gap: float) -> list[np.ndarray]:
     return np.split(order, gaps + 1)
 
 
-def extract_segments(points: np.ndarray, config: ExtractionConfig = ExtractionConfig(),
+def extract_segments(points: np.ndarray, config: RansacPlanesConfig = RansacPlanesConfig(),
                      timings: dict[str, float] | None = None) -> ScanSegments:
     """Wall segments of one scan.
 
@@ -145,7 +140,7 @@ def extract_segments(points: np.ndarray, config: ExtractionConfig = ExtractionCo
         o3d.utility.set_max_threads(threads)
 
 
-def _extract(points: np.ndarray, config: ExtractionConfig, timings: dict[str, float] | None) -> ScanSegments:
+def _extract(points: np.ndarray, config: RansacPlanesConfig, timings: dict[str, float] | None) -> ScanSegments:
     import open3d as o3d
 
     clock = _StageClock(timings)
@@ -220,16 +215,5 @@ class _StageClock:
             self.last = now
 
 
-def segments_to_world(scan_segments: ScanSegments, T_w_velo: np.ndarray) -> np.ndarray:
-    """Move a scan's segments to the world frame.
-
-    Each endpoint is lifted to its piece's mean height, transformed by ``T_w_velo`` (4, 4) and
-    projected to the world's x-y plane. Returns (K, 4) world-frame ``x1, y1, x2, y2``.
-    """
-    seg = scan_segments.segments
-    if len(seg) == 0:
-        return np.zeros((0, 4))
-    R, t = T_w_velo[:3, :3], T_w_velo[:3, 3]
-    p1 = np.column_stack([seg[:, 0], seg[:, 1], scan_segments.z_mean]) @ R.T + t
-    p2 = np.column_stack([seg[:, 2], seg[:, 3], scan_segments.z_mean]) @ R.T + t
-    return np.column_stack([p1[:, :2], p2[:, :2]])
+EXTRACTOR = Extractor(name="ransac_planes", dimension=3, config_type=RansacPlanesConfig, extract=extract_segments,
+                      version=1)

@@ -1,12 +1,12 @@
-"""``featmap fuse`` end to end through the typer app."""
+"""The fusion-only job (``featmap fuse``) end to end through the typer app."""
 
 import numpy as np
 from typer.testing import CliRunner
 
 from featmap.cli import app
-from featmap.config import load_config
+from featmap.pipeline.config import load_config
 from featmap.io.segments_csv import SegmentTable, read_fused_csv, write_segments_csv
-from featmap.synthetic import observe_walls
+from featmap.simulation.segments import observe_walls
 
 runner = CliRunner()
 

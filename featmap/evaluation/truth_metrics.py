@@ -4,21 +4,17 @@ Tolerances: ``TOL = 0.30 m``, ``ANG = 10 deg``, sampling step 0.10 m. A point *l
 when its perpendicular distance is at most TOL, its projection falls inside the segment extended by
 TOL at both ends, and the two directions differ by at most ANG.
 
-Ground truth comes from a simulated drive's ``truth/`` folder (walls with what the drive observed of
-them) or from building footprints in a GeoJSON file (e.g. OpenStreetMap); footprints carry no
-observation record, so there every wall counts as observable over its whole length.
+Pure functions of arrays: the ground truth itself is read by :mod:`featmap.evaluation.references`
+(a simulated drive's ``truth/`` folder, or building footprints such as OpenStreetMap's).
 """
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from featmap.errors import InputFileError
-from featmap.geo import GeoFrame
+from featmap.geometry import segment_directions
 
 TOL_M = 0.30
 ANG_DEG = 10.0
@@ -59,114 +55,6 @@ class GroundTruth:
         return enough & (observed_m >= MIN_OBSERVED_M)
 
 
-def _transform(points: np.ndarray, src: GeoFrame | None, dst: GeoFrame | None) -> np.ndarray:
-    """Move (K, 2) local points from the frame of ``src`` to the frame of ``dst`` (through WGS84)."""
-    if src is None or dst is None or (src.lat0_deg == dst.lat0_deg and src.lon0_deg == dst.lon0_deg):
-        return points
-    lat, lon = src.to_wgs84(points[:, 0], points[:, 1])
-    x, y = dst.to_local(lat, lon)
-    return np.column_stack([x, y])
-
-
-def load_truth(truth_dir: str | Path, frame: GeoFrame | None = None, frames: list[int] | None = None) -> GroundTruth:
-    """Read a simulated drive's ``truth/`` folder.
-
-    Args:
-        truth_dir: the drive's ``truth/`` folder.
-        frame: express the truth in this run's local frame (default: the drive's own).
-        frames: count only what these frames observed (default: the whole drive).
-    """
-    truth_dir = Path(truth_dir)
-    from featmap.io.jsonfile import read_json
-
-    sim = read_json(truth_dir / "simulation.json", "not found: not a simulated drive's truth/ folder")
-    src = GeoFrame(**sim["geo_origin"])
-    rows = list(csv.DictReader(open(truth_dir / "walls.csv", newline="")))
-    walls = np.array([[float(r[c]) for c in ("x1", "y1", "x2", "y2")] for r in rows]).reshape(-1, 4)
-    walls = np.column_stack([_transform(walls[:, :2], src, frame), _transform(walls[:, 2:], src, frame)])
-    observed = []
-    for r in rows:
-        iv = [tuple(float(v) for v in part.split("-")) for part in r["observed_intervals"].split(";") if part]
-        observed.append(iv)
-    n_returns = np.array([int(r["n_returns"]) for r in rows])
-    if frames is not None and (truth_dir / "coverage.npz").exists():
-        observed, n_returns = _coverage_of_frames(truth_dir / "coverage.npz", walls, frames)
-    objects = read_json(truth_dir / "objects_local.json")["objects"]
-    other, poles = [], []
-    for obj in objects:
-        geom = obj["geometry"]
-        if obj["kind"] == "fence":
-            line = np.asarray(geom["coordinates"], float)
-            other += [np.concatenate([a, b]) for a, b in zip(line[:-1], line[1:])]
-        elif obj["kind"] == "car":
-            ring = np.asarray(geom["coordinates"][0], float)
-            other += [np.concatenate([ring[k], ring[(k + 1) % len(ring)]]) for k in range(len(ring))]
-        elif obj["kind"] == "pole":
-            poles.append([*geom["coordinates"], obj.get("radius", 0.15)])
-    other = np.asarray(other, float).reshape(-1, 4)
-    if len(other):
-        other = np.column_stack([_transform(other[:, :2], src, frame), _transform(other[:, 2:], src, frame)])
-    poles = np.asarray(poles, float).reshape(-1, 3)
-    if len(poles):
-        poles[:, :2] = _transform(poles[:, :2], src, frame)
-    return GroundTruth(walls=walls, building=np.array([r["building"] for r in rows]),
-                       labels=np.array([[r["label_1"], r["label_2"]] for r in rows]).reshape(-1, 2),
-                       observed=observed, n_returns=n_returns,
-                       other_segments=other, poles=poles)
-
-
-def _coverage_of_frames(path: Path, walls: np.ndarray, frames: list[int]) -> tuple[list, np.ndarray]:
-    """Observed intervals and return counts per wall, counting only ``frames``."""
-    from featmap.simulation.simulate import observed_intervals
-
-    data = np.load(path)
-    keep = np.isin(data["frame"], np.asarray(frames))
-    offset = data["bin_offset"]
-    counts = np.bincount(data["bin"][keep], weights=data["count"][keep], minlength=int(offset[-1])).astype(np.int64)
-    lengths = np.hypot(walls[:, 2] - walls[:, 0], walls[:, 3] - walls[:, 1])
-    observed, n_returns = [], []
-    for w in range(len(walls)):
-        c = counts[offset[w]:offset[w + 1]]
-        observed.append(observed_intervals(c, int(data["min_bin_returns"]), float(data["bin_m"]), float(lengths[w])))
-        n_returns.append(int(c.sum()))
-    return observed, np.asarray(n_returns)
-
-
-def truth_from_footprints(path: str | Path, frame: GeoFrame) -> GroundTruth:
-    """Building footprints from a GeoJSON FeatureCollection (WGS84 Polygons), every wall fully observable."""
-    from featmap.io.jsonfile import read_json
-
-    path = Path(path)
-    data = read_json(path)
-    if not isinstance(data, dict) or data.get("type") != "FeatureCollection":
-        raise InputFileError(path, "expected a GeoJSON FeatureCollection of building Polygons")
-    walls, building, labels = [], [], []
-    for n, feat in enumerate(data.get("features", [])):
-        geom = feat.get("geometry") or {}
-        props = feat.get("properties") or {}
-        if props.get("kind", "building") != "building":
-            continue
-        polys = [geom.get("coordinates")] if geom.get("type") == "Polygon" else \
-            geom.get("coordinates") if geom.get("type") == "MultiPolygon" else []
-        vlabels = props.get("vertex_labels") or []
-        for rings in polys:
-            for r_index, ring in enumerate(rings):
-                ring = np.asarray(ring, float)
-                if len(ring) > 1 and np.allclose(ring[0], ring[-1]):
-                    ring = ring[:-1]
-                x, y = frame.to_local(ring[:, 1], ring[:, 0])
-                pts = np.column_stack([x, y])
-                for k in range(len(pts)):
-                    walls.append(np.concatenate([pts[k], pts[(k + 1) % len(pts)]]))
-                    building.append(str(props.get("id", n)))
-                    lab = vlabels if (r_index == 0 and len(vlabels) == len(pts)) else [""] * len(pts)
-                    labels.append([lab[k], lab[(k + 1) % len(pts)]])
-    walls = np.asarray(walls, float).reshape(-1, 4)
-    lengths = np.hypot(walls[:, 2] - walls[:, 0], walls[:, 3] - walls[:, 1])
-    return GroundTruth(walls=walls, building=np.asarray(building), labels=np.asarray(labels).reshape(-1, 2),
-                       observed=[[(0.0, float(L))] for L in lengths], n_returns=np.full(len(walls), -1))
-
-
 # --- geometry of "lies on" --------------------------------------------------------------------------
 
 def sample_segments(segments: np.ndarray, step: float = STEP_M) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -196,12 +84,6 @@ def lies_on(points: np.ndarray, directions: np.ndarray, segment: np.ndarray,
     return ok, perp
 
 
-def _directions(segments: np.ndarray) -> np.ndarray:
-    d = segments[:, 2:] - segments[:, :2]
-    n = np.hypot(d[:, 0], d[:, 1])
-    return d / np.where(n > 0, n, 1.0)[:, None]
-
-
 def observed_samples(truth: GroundTruth, walls_mask: np.ndarray, step: float = STEP_M):
     """Samples along the observed parts of the selected walls: (points (S, 2), wall index (S,), weight (S,))."""
     pts, owner, weight = [], [], []
@@ -223,7 +105,7 @@ def observed_samples(truth: GroundTruth, walls_mask: np.ndarray, step: float = S
     return np.concatenate(pts), np.concatenate(owner), np.concatenate(weight)
 
 
-def compute_metrics(fused: np.ndarray, truth: GroundTruth) -> dict:
+def truth_metrics(fused: np.ndarray, truth: GroundTruth) -> dict:
     """All metrics of EVALUATION.md for fused segments (M, 4) in the truth's local frame."""
     fused = np.asarray(fused, float).reshape(-1, 4)
     observable = truth.observable()
@@ -233,7 +115,7 @@ def compute_metrics(fused: np.ndarray, truth: GroundTruth) -> dict:
 
     # precision / offset: fused samples on building walls (and on any structure)
     samples, owner, weight = sample_segments(fused) if len(fused) else (np.zeros((0, 2)), np.zeros(0, int), np.zeros(0))
-    sdir = _directions(fused)[owner] if len(fused) else np.zeros((0, 2))
+    sdir = segment_directions(fused)[owner] if len(fused) else np.zeros((0, 2))
     best = np.full(len(samples), np.inf)
     best_wall = np.full(len(samples), -1)
     for w, wall in enumerate(truth.walls):
@@ -254,7 +136,7 @@ def compute_metrics(fused: np.ndarray, truth: GroundTruth) -> dict:
 
     # recall / redundancy: observed wall samples covered by fused features
     wpts, wown, wweight = observed_samples(truth, observable)
-    wdir = _directions(truth.walls)[wown] if len(wown) else np.zeros((0, 2))
+    wdir = segment_directions(truth.walls)[wown] if len(wown) else np.zeros((0, 2))
     covered = np.zeros(len(wpts), bool)
     cover_len: dict[tuple[int, int], float] = {}
     for f, seg in enumerate(fused):

@@ -9,7 +9,7 @@ from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 import pytest
 
 from featmap.datasets import KittiRawDataset
-from featmap.download import download_drive, fetch
+from featmap.datasets.kitti_download import download_drive, fetch
 from featmap.errors import DownloadError
 
 DRIVE = "2000_01_01_drive_0001"

@@ -1,0 +1,47 @@
+"""Simulated drives as a scan source: a world name (or world file), simulated on first use.
+
+``featmap run`` without ``--drive`` opens the embedded default, the ``residential`` world, simulated into
+``data/sim/residential`` with the HDL-64E preset (about 20 s) and reused afterwards. The drive is a KITTI
+raw drive with a ``truth/`` folder beside its scans, read through :class:`KittiRawDataset`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from featmap.datasets.kitti_raw import KittiRawDataset
+from featmap.reporting import NullReporter, Reporter, track
+
+DEFAULT_WORLD = "residential"
+DEFAULT_SIM_ROOT = Path("data/sim")
+SIM_DRIVE_ID = "0001"
+
+
+def ensure_simulated_drive(world_name: str = DEFAULT_WORLD, sim_root: str | Path = DEFAULT_SIM_ROOT,
+                           reporter: Reporter = NullReporter()) -> tuple[Path, str]:
+    """Return (KITTI raw root, drive name) of the simulated drive of ``world_name``, simulating it if missing.
+
+    ``world_name`` is a built-in world or a world file; its drive lives in ``sim_root/<world stem>``.
+    """
+    from featmap.simulation.sensors import SENSORS
+    from featmap.simulation.simulate import SIM_DATE, simulate_drive
+    from featmap.simulation.worlds import load_world
+
+    stem = Path(world_name).stem
+    data_dir = Path(sim_root) / stem
+    drive = f"{SIM_DATE}_drive_{SIM_DRIVE_ID}"
+    if not (data_dir / SIM_DATE / f"{drive}_sync" / "truth" / "simulation.json").exists():
+        world = load_world(world_name)
+        reporter.info(f"first run: simulating the {stem} drive into {data_dir} (reused afterwards)")
+        simulate_drive(world, data_dir, SENSORS["hdl64"], drive_id=SIM_DRIVE_ID,
+                       progress=lambda it, n: track(reporter, it, n, f"simulating {stem}"))
+    return data_dir, drive
+
+
+def open_world(location: str, frames: str | None = None, skip_bad_scans: bool = False,
+               reporter: Reporter = NullReporter()) -> KittiRawDataset:
+    """The simulated drive of a world (the registry's opener); ``location`` is a world name or file."""
+    data_dir, drive = ensure_simulated_drive(location or DEFAULT_WORLD, reporter=reporter)
+    source = KittiRawDataset(data_dir, drive, frames, skip_bad_scans)
+    source.name = Path(location or DEFAULT_WORLD).stem
+    return source

@@ -1,0 +1,55 @@
+"""``featmap evaluate``: score any fused map file against any ground truth, in one local frame."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from featmap.errors import FeatmapError, InputFileError
+from featmap.evaluation.references import load_simulator_truth, truth_from_footprints
+from featmap.evaluation.truth_metrics import truth_metrics
+from featmap.geo import GeoFrame
+from featmap.io.sim_truth import is_truth_folder, read_simulation_json
+
+
+def parse_origin(origin: str) -> GeoFrame:
+    try:
+        lat, lon = (float(v) for v in origin.split(","))
+    except ValueError:
+        raise FeatmapError(f"--origin {origin!r}: expected LAT,LON, e.g. 49.011,8.424") from None
+    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+        raise FeatmapError(f"--origin {origin!r}: latitude must be in [-90, 90] and longitude in [-180, 180]")
+    return GeoFrame(lat, lon)
+
+
+def _frame_for_csv(fused: Path, origin: str | None) -> GeoFrame | None:
+    from featmap.io.run_metrics import read_run_metrics
+
+    if origin is not None:
+        return parse_origin(origin)
+    metrics = fused.parent / "metrics.json"
+    if metrics.exists():
+        geo = read_run_metrics(metrics).geo_frame
+        return geo.frame() if geo is not None else None
+    return None
+
+
+def evaluate_file(fused: str | Path, truth: str | Path, origin: str | None = None) -> dict:
+    """Metrics of ``fused`` (.csv or .geojson) against ``truth`` (footprints .geojson or a truth/ folder)."""
+    from featmap.io.geojson import first_position, read_segments_geojson
+    from featmap.io.segments_csv import read_fused_csv
+
+    fused, truth = Path(fused), Path(truth)
+    if not truth.exists():
+        raise InputFileError(truth, "ground truth not found")
+    if truth.is_dir() and not is_truth_folder(truth):
+        raise InputFileError(truth, "not a simulated drive's truth/ folder (walls.csv and simulation.json expected)")
+    if fused.suffix.lower() in (".geojson", ".json"):
+        frame = first_position(truth) if truth.is_file() else GeoFrame(**read_simulation_json(truth)["geo_origin"])
+        segments, _ = read_segments_geojson(fused, frame)
+    else:
+        frame = _frame_for_csv(fused, origin)
+        segments, _ = read_fused_csv(fused)
+        if frame is None and truth.is_file():
+            raise FeatmapError(f"{fused}: a CSV is in a local frame; give --origin LAT,LON or keep it next to its metrics.json")
+    gt = load_simulator_truth(truth, frame) if truth.is_dir() else truth_from_footprints(truth, frame)
+    return truth_metrics(segments, gt)

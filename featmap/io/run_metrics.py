@@ -1,0 +1,110 @@
+"""``metrics.json``: the typed record of one run, written by the pipeline and read by compare, figures,
+sweeps and batches.
+
+Paths in it are absolute (a reference such as a simulated drive's ``truth/`` folder stays where it is
+when the run folder moves); readers also accept paths relative to the run folder.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional, Union
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from featmap.errors import InputFileError
+from featmap.geo import GeoFrame
+from featmap.io.atomic import atomic_write_text
+from featmap.io.jsonfile import read_json
+
+SCHEMA_VERSION = 2
+Score = Union[int, float, None, dict[str, Optional[float]]]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class SourceRecord(_Model):
+    """Where the scans came from."""
+
+    kind: str = Field(description="format name in the dataset registry")
+    name: str
+    location: str = Field(description="absolute path of the drive folder or log file")
+    dimension: int
+    frames: list[int] = Field(description="frame numbers selected")
+    frames_processed: list[int] = Field(description="frames whose segments went into the map")
+    skipped: dict[str, str] = Field(default_factory=dict, description="frame -> why it was left out")
+    flags: dict[str, list[int]] = Field(default_factory=dict, description="e.g. poor_gps -> frames")
+
+
+class GeoRecord(_Model):
+    lat0_deg: float
+    lon0_deg: float
+    alt0_m: float = 0.0
+
+    def frame(self) -> GeoFrame:
+        return GeoFrame(self.lat0_deg, self.lon0_deg, self.alt0_m)
+
+
+class ScanCounts(_Model):
+    total: int
+    processed: int
+    extracted_now: int
+    from_cache: int
+
+
+class MethodRecord(_Model):
+    """One fusion method's result: its count, time and scores per evaluator (e.g. ``truth``)."""
+
+    count: int
+    clusters_dropped: int = 0
+    seconds: float
+    scores: dict[str, dict[str, Score]] = Field(default_factory=dict)
+
+
+class RunMetrics(_Model):
+    schema_version: int = SCHEMA_VERSION
+    featmap_version: str
+    source: SourceRecord
+    geo_frame: Optional[GeoRecord] = None
+    references: dict[str, str] = Field(default_factory=dict, description="evaluator -> reference used (absolute path)")
+    primary: Optional[str] = Field(None, description="the evaluator whose scores summarise the run")
+    scans: ScanCounts
+    segments: int
+    timings_s: dict[str, Optional[float]]
+    methods: dict[str, MethodRecord]
+
+    def primary_scores(self, method: str) -> dict[str, Score]:
+        """The primary evaluator's scores of ``method`` ({} when the run had no reference)."""
+        return self.methods[method].scores.get(self.primary, {}) if self.primary else {}
+
+    def reference_path(self, name: str, run_dir: str | Path) -> Path | None:
+        """The reference an evaluator used, resolved against ``run_dir`` when it is relative."""
+        value = self.references.get(name)
+        if value is None:
+            return None
+        path = Path(value)
+        return path if path.is_absolute() else Path(run_dir) / path
+
+
+def write_run_metrics(path: str | Path, metrics: RunMetrics) -> Path:
+    return atomic_write_text(path, json.dumps(metrics.model_dump(mode="json"), indent=1))
+
+
+def read_run_metrics(path: str | Path) -> RunMetrics:
+    """Read and validate a ``metrics.json``; a one-line InputFileError naming what is wrong."""
+    path = Path(path)
+    data = read_json(path, "not found: is this a featmap run folder? (featmap run writes it)")
+    if not isinstance(data, dict):
+        raise InputFileError(path, "expected a JSON object written by featmap run")
+    if data.get("schema_version") != SCHEMA_VERSION:
+        raise InputFileError(path, f"written by another featmap version (schema {data.get('schema_version', 1)}, "
+                                   f"expected {SCHEMA_VERSION}); run featmap run again")
+    try:
+        return RunMetrics.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = ".".join(str(p) for p in err["loc"])
+        raise InputFileError(path, f"not a featmap metrics file: '{where}' {err['msg'].lower()}") from None

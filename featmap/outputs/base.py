@@ -1,0 +1,73 @@
+"""What a run hands its writers, and what a writer (an output plug-in) is."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+from pydantic import Field
+
+from featmap.config import Section
+from featmap.fusion import FusionResult
+from featmap.geo import GeoFrame
+from featmap.io.run_metrics import RunMetrics
+from featmap.io.segments_csv import SegmentTable
+
+
+class OutputConfig(Section):
+    """What a run writes besides the CSV files of the output contract."""
+
+    geojson: bool = Field(True, description="write fused_<method>.geojson (WGS84)")
+    kml: bool = Field(True, description="write map.kml for Google Earth")
+    html: bool = Field(True, description="write map.html (interactive Leaflet map)")
+    plots: bool = Field(True, description="write overview PNG plots")
+    tile_source: str = Field("OpenStreetMap.Mapnik", description="basemap: an xyzservices name or a {z}/{x}/{y} URL template")
+    tile_cache_dir: str = Field("~/.cache/featmap/tiles", description="on-disk cache of fetched map tiles")
+    tile_timeout_s: float = Field(5.0, gt=0, description="give up on the basemap after this many seconds")
+
+
+@dataclass(frozen=True)
+class RunProducts:
+    """Everything one run made, in its local metric frame.
+
+    Attributes:
+        table: the extracted segments (world frame) with their scans.
+        results: method name -> its fusion result.
+        frames: (F,) frame numbers of ``poses``.
+        poses: (F, 4, 4) ``T_world_sensor`` of the scans processed.
+        geo_frame: WGS84 origin of the local frame, or None (then no WGS84 output is written).
+        truth: the ground truth the run was scored against (walls (W, 4), labels, ...), or None.
+        config_yaml: the resolved configuration, as saved in ``config.yaml``.
+        metrics: the run's record (``metrics.json``).
+        output: the ``output:`` config section.
+    """
+
+    table: SegmentTable
+    results: dict[str, FusionResult]
+    frames: list[int]
+    poses: np.ndarray
+    geo_frame: GeoFrame | None
+    truth: Any
+    config_yaml: str
+    metrics: RunMetrics
+    output: OutputConfig
+
+    @property
+    def trajectory(self) -> np.ndarray:
+        """(F, 2) sensor positions."""
+        return self.poses[:, :2, 3]
+
+
+class Output(Protocol):
+    """A writer: the files it makes, whether it needs a geo origin, whether the config turns it on."""
+
+    name: str
+    needs_geo: bool
+
+    def enabled(self, config: OutputConfig) -> bool: ...
+
+    def write(self, products: RunProducts, folder: Path) -> list[str]:
+        """Write into ``folder``; return the names of the files written."""
+        ...

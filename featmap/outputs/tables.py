@@ -1,0 +1,59 @@
+"""The CSV files of the output contract: ``segments.csv``, ``fused_<method>.csv``, ``trajectory.csv``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from featmap.io.atomic import atomic_write_text
+from featmap.io.segments_csv import write_fused_csv, write_segments_csv
+from featmap.outputs.base import OutputConfig, RunProducts
+
+
+class SegmentsCsv:
+    name = "segments.csv"
+    needs_geo = False
+
+    def enabled(self, config: OutputConfig) -> bool:
+        return True
+
+    def write(self, products: RunProducts, folder: Path) -> list[str]:
+        write_segments_csv(folder / "segments.csv", products.table)
+        return ["segments.csv"]
+
+
+class FusedCsv:
+    name = "fused_<method>.csv"
+    needs_geo = False
+
+    def enabled(self, config: OutputConfig) -> bool:
+        return True
+
+    def write(self, products: RunProducts, folder: Path) -> list[str]:
+        names = []
+        for method, result in products.results.items():
+            write_fused_csv(folder / f"fused_{method}.csv", result.segments, result.support)
+            names.append(f"fused_{method}.csv")
+        return names
+
+
+def trajectory_csv_text(frames: list[int], poses: np.ndarray) -> str:
+    """``frame,x,y,z,yaw`` of the sensor per frame (local frame, metres and radians)."""
+    lines = ["frame,x,y,z,yaw"]
+    for frame, T in zip(frames, poses):
+        yaw = np.arctan2(T[1, 0], T[0, 0])
+        lines.append(f"{frame},{T[0, 3]:.4f},{T[1, 3]:.4f},{T[2, 3]:.4f},{yaw:.6f}")
+    return "\n".join(lines) + "\n"
+
+
+class TrajectoryCsv:
+    name = "trajectory.csv"
+    needs_geo = False
+
+    def enabled(self, config: OutputConfig) -> bool:
+        return True
+
+    def write(self, products: RunProducts, folder: Path) -> list[str]:
+        atomic_write_text(folder / "trajectory.csv", trajectory_csv_text(products.frames, products.poses))
+        return ["trajectory.csv"]

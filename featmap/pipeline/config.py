@@ -1,0 +1,48 @@
+"""The configuration of a run: every stage's section, composed (defaults < YAML < ``--set``).
+
+Each section is defined beside its code: ``extraction`` by the extractor registry, ``fusion`` by the
+fusion registry, ``evaluation`` by the evaluation plug-ins, ``output`` by the output plug-ins.
+``configs/default.yaml`` is the commented rendering of these defaults (``featmap config`` prints it; a
+test keeps them identical).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Iterable
+
+from featmap.config import Section, commented_yaml, load_config_file, to_yaml, validate_config
+from featmap.evaluation import EvaluationConfig
+from featmap.extraction import ExtractionConfig
+from featmap.fusion import FusionConfig
+from featmap.io.atomic import atomic_write_text
+from featmap.outputs import OutputConfig
+
+
+class FeatmapConfig(Section):
+    extraction: ExtractionConfig = ExtractionConfig()  # type: ignore[valid-type]
+    fusion: FusionConfig = FusionConfig()  # type: ignore[valid-type]
+    evaluation: EvaluationConfig = EvaluationConfig()
+    output: OutputConfig = OutputConfig()
+
+    def to_yaml(self) -> str:
+        return to_yaml(self)
+
+
+def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -> FeatmapConfig:
+    """Defaults, then the YAML file at ``path`` (if any), then ``--set key=value`` overrides."""
+    return load_config_file(FeatmapConfig, path, overrides)
+
+
+def config_from_dict(data: dict[str, Any], source: str = "config") -> FeatmapConfig:
+    return validate_config(FeatmapConfig, data, source)
+
+
+def save_config(config: FeatmapConfig, path: str | Path) -> Path:
+    """Write the fully resolved config (atomically) so a run can be repeated exactly."""
+    return atomic_write_text(path, config.to_yaml())
+
+
+def default_config_yaml() -> str:
+    """The defaults with one comment per key: the text of ``configs/default.yaml``."""
+    return commented_yaml(FeatmapConfig())

@@ -1,0 +1,96 @@
+"""Where per-item work runs: in this process, or on a pool of local processes.
+
+The pipeline and sweeps take an executor instead of starting pools themselves, so the same code runs in
+a notebook, on two local processes, or inside a batch task (where starting a pool is not allowed).
+``imap`` keeps at most ``window`` items in flight, so a long input is never materialised in memory,
+and yields results in the input's order.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Callable, Iterable, Iterator, Protocol, TypeVar
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+class Executor(Protocol):
+    workers: int
+
+    def imap(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]: ...
+
+
+class SerialExecutor:
+    """Runs every item in this process, one after the other."""
+
+    workers = 1
+
+    def imap(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
+        return map(fn, items)
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self) -> "SerialExecutor":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        pass
+
+
+def _limit_threads() -> None:
+    """Worker initializer: one BLAS/OpenMP thread per worker process (the workers are the parallelism)."""
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1)
+
+
+class ProcessExecutor:
+    """A pool of ``workers`` local processes (spawned: Open3D and fork do not mix), started on first use.
+
+    Use it as a context manager (or call :meth:`close`) so the processes end with it. ``fn`` and the
+    items must be picklable (module-level functions, numpy arrays, frozen dataclasses).
+    """
+
+    def __init__(self, workers: int = 2, window: int | None = None):
+        self.workers = max(1, int(workers))
+        self.window = window or 2 * self.workers
+        self._pool = None
+
+    def _get_pool(self):
+        if self._pool is None:
+            import multiprocessing as mp
+            from concurrent.futures import ProcessPoolExecutor
+
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"), initializer=_limit_threads)
+        return self._pool
+
+    def imap(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
+        pending: deque = deque()
+        try:
+            for item in items:
+                pending.append(self._get_pool().submit(fn, item))
+                if len(pending) >= self.window:
+                    yield pending.popleft().result()
+            while pending:
+                yield pending.popleft().result()
+        finally:
+            for future in pending:
+                future.cancel()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+            self._pool = None
+
+    def __enter__(self) -> "ProcessExecutor":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def local_executor(workers: int) -> SerialExecutor | ProcessExecutor:
+    """A serial executor for one worker, a process pool otherwise."""
+    return SerialExecutor() if workers <= 1 else ProcessExecutor(workers)

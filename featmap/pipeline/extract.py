@@ -1,0 +1,125 @@
+"""Extraction of every scan of a source, through the segment store and an executor.
+
+The main process reads each scan (so a bad scan is reported at once, with its file), looks its content
+key up in the store, and sends only the scans that are not cached to the executor. Results are kept in
+the sensor frame; :meth:`Extraction.world_table` moves them to the world frame with the poses given
+(the source's own, or refined ones).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from featmap.datasets.base import ScanSource
+from featmap.errors import DatasetError
+from featmap.extraction import ExtractionConfig, ScanSegments, extractor_for, segments_to_world, world_fields
+from featmap.extraction.base import Extractor
+from featmap.io.segments_csv import SegmentTable
+from featmap.pipeline.executor import Executor, SerialExecutor
+from featmap.pipeline.segment_store import SegmentStore, scan_key
+from featmap.reporting import NullReporter, Reporter
+
+
+@dataclass
+class Extraction:
+    """Per-scan segments of a source (sensor frame) and how they were obtained.
+
+    Attributes:
+        frames: frame numbers whose scans were processed, in order.
+        scans: sensor-frame segments of each of those frames.
+        poses: (F, 4, 4) ``T_world_sensor`` of those frames (the source's poses).
+        dimension: 2 or 3.
+        extracted_now, from_cache: how many scans were extracted in this call or came from the store.
+        skipped: frame -> reason, for unreadable scans left out (``skip_bad_scans``).
+        seconds: wall-clock time of the whole extraction; scan_seconds: per extracted scan.
+        discarded: cache entries found corrupt and re-made.
+    """
+
+    frames: list[int]
+    scans: list[ScanSegments]
+    poses: np.ndarray
+    dimension: int
+    extracted_now: int = 0
+    from_cache: int = 0
+    skipped: dict[int, str] = field(default_factory=dict)
+    seconds: float = 0.0
+    scan_seconds: list[float] = field(default_factory=list)
+    discarded: list[str] = field(default_factory=list)
+
+    def world_table(self, poses: np.ndarray | None = None) -> SegmentTable:
+        """Every segment in the world frame with its scan (frame number) and per-segment columns.
+
+        Args:
+            poses: (F, 4, 4) ``T_world_sensor`` to use instead of the source's (e.g. refined poses).
+        """
+        poses = self.poses if poses is None else poses
+        segs, scans, extras = [], [], []
+        for frame, scan_segments, T in zip(self.frames, self.scans, poses):
+            segs.append(segments_to_world(scan_segments, T))
+            scans.append(np.full(len(scan_segments), frame, np.int64))
+            extras.append(world_fields(scan_segments, T))
+        if not segs:
+            return SegmentTable(scan=np.zeros(0, np.int64), segments=np.zeros((0, 4)))
+        names = list(extras[0])
+        return SegmentTable(scan=np.concatenate(scans), segments=np.concatenate(segs),
+                            extra={k: np.concatenate([e[k] for e in extras]).astype(float) for k in names})
+
+
+def _extract_one(task: tuple[int, str, np.ndarray, Extractor, object]) -> tuple[int, str, ScanSegments, float]:
+    """Executor task: (frame, key, points, extractor, config section) -> (frame, key, segments, seconds)."""
+    frame, key, points, extractor, section = task
+    start = time.perf_counter()
+    result = extractor.extract(points, section)
+    return frame, key, result, time.perf_counter() - start
+
+
+def extract_source(source: ScanSource, config: ExtractionConfig, store: SegmentStore,  # type: ignore[valid-type]
+                   executor: Executor = SerialExecutor(), reporter: Reporter = NullReporter(),
+                   skip_bad_scans: bool = False) -> Extraction:
+    """Segments of every selected scan of ``source``, from ``store`` where possible.
+
+    Raises:
+        DatasetError: an unreadable scan (unless ``skip_bad_scans``: then it is left out and listed).
+    """
+    extractor = extractor_for(source.dimension, config)
+    section = getattr(config, extractor.name)
+    results: dict[int, ScanSegments] = {}
+    out = Extraction(frames=[], scans=[], poses=np.zeros((0, 4, 4)), dimension=source.dimension)
+    start = time.perf_counter()
+    with reporter.progress(f"extracting {source.name}", len(source)) as advance:
+        def uncached():
+            for position, frame in enumerate(source.frames):
+                try:
+                    scan = source[position]
+                except DatasetError as exc:
+                    if not skip_bad_scans:
+                        raise DatasetError(f"{exc} (use --skip-bad-scans to leave it out)") from None
+                    out.skipped[frame] = str(exc)
+                    advance(1)
+                    continue
+                key = scan_key(scan.points, extractor, section)
+                cached = store.get(key)
+                if cached is not None:
+                    results[frame] = cached
+                    out.from_cache += 1
+                    advance(1)
+                    continue
+                yield frame, key, scan.points, extractor, section
+
+        for frame, key, segments, seconds in executor.imap(_extract_one, uncached()):
+            store.put(key, segments)
+            results[frame] = segments
+            out.extracted_now += 1
+            out.scan_seconds.append(seconds)
+            advance(1)
+    out.seconds = time.perf_counter() - start
+    out.discarded = list(store.discarded)
+    out.frames = [f for f in source.frames if f in results]
+    out.scans = [results[f] for f in out.frames]
+    poses = source.poses()
+    position = {f: i for i, f in enumerate(source.frames)}
+    out.poses = poses[[position[f] for f in out.frames]] if out.frames else np.zeros((0, 4, 4))
+    return out

@@ -1,0 +1,180 @@
+"""One run: a scan source in, a run folder out.
+
+:meth:`MappingPipeline.run` opens the run folder (so a bad ``--out`` fails first), extracts every scan
+through the segment store and the executor, moves the segments to the world frame, fuses them with every
+requested method, scores the results with every evaluation plug-in that finds its reference, writes the
+output plug-ins and the run's record (``config.yaml``, ``metrics.json``) into the folder, swaps it into
+place, and reports a summary through the reporter.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from featmap import __version__
+from featmap.datasets.base import ScanSource
+from featmap.evaluation import EVALUATORS, EvaluationContext, Evaluator, Reference
+from featmap.io.atomic import atomic_write_text
+from featmap.io.run_metrics import (GeoRecord, MethodRecord, RunMetrics, ScanCounts, SourceRecord,
+                                    write_run_metrics)
+from featmap.outputs import OUTPUTS, Output, RunProducts, write_outputs
+from featmap.pipeline.config import FeatmapConfig
+from featmap.pipeline.executor import Executor, SerialExecutor
+from featmap.pipeline.extract import Extraction, extract_source
+from featmap.pipeline.fuse import MethodRun, fuse_methods, warm_up
+from featmap.pipeline.run_folder import RunFolder
+from featmap.pipeline.segment_store import SegmentStore
+from featmap.reporting import NullReporter, Reporter
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What a run produced: its record, everything the writers got, and the files written."""
+
+    out: Path
+    metrics: RunMetrics
+    products: RunProducts
+    files: list[str]
+
+
+def score_methods(runs: list[MethodRun], references: dict[str, tuple[Evaluator, Reference]]) -> dict[str, dict]:
+    """method -> evaluator name -> metrics."""
+    return {run.name: {name: ev.score(ref, run.result.segments) for name, (ev, ref) in references.items()}
+            for run in runs}
+
+
+def prepare_references(context: EvaluationContext,
+                       evaluators: tuple[Evaluator, ...] = EVALUATORS) -> dict[str, tuple[Evaluator, Reference]]:
+    """The evaluators that found their reference, in order (the first is the run's primary score)."""
+    found = {}
+    for evaluator in evaluators:
+        reference = evaluator.prepare(context)
+        if reference is not None:
+            found[evaluator.name] = (evaluator, reference)
+    return found
+
+
+class MappingPipeline:
+    """Extract, fuse, score and write one scan source.
+
+    Args:
+        config: the resolved configuration.
+        methods: fusion methods to run (registry names).
+        store: the segment cache (``SegmentStore(None)`` keeps nothing).
+        executor: where per-scan extraction runs.
+        reporter: progress and summaries.
+        skip_bad_scans: leave unreadable scans out (listed in metrics.json) instead of failing.
+        outputs: the output plug-ins to run.
+    """
+
+    def __init__(self, config: FeatmapConfig, methods: list[str], store: SegmentStore,
+                 executor: Executor = SerialExecutor(), reporter: Reporter = NullReporter(),
+                 skip_bad_scans: bool = False, outputs: tuple[Output, ...] = OUTPUTS):
+        self.config = config
+        self.methods = methods
+        self.store = store
+        self.executor = executor
+        self.reporter = reporter
+        self.skip_bad_scans = skip_bad_scans
+        self.outputs = outputs
+
+    def extract(self, source: ScanSource) -> Extraction:
+        return extract_source(source, self.config.extraction, self.store, self.executor, self.reporter,
+                              self.skip_bad_scans)
+
+    def run(self, source: ScanSource, out: str | Path) -> RunResult:
+        t0 = time.perf_counter()
+        with RunFolder(out) as folder:
+            extraction = self.extract(source)
+            for message in extraction.discarded:
+                self.reporter.warning(f"discarded a corrupt cache entry and extracted again: {message}")
+            table = extraction.world_table()
+            import_seconds = warm_up(self.methods, self.config.fusion)
+            runs = fuse_methods(table, self.methods, self.config.fusion, self.reporter)
+            t_eval = time.perf_counter()
+            context = EvaluationContext(source.location, extraction.frames, source.geo_origin, self.config.evaluation)
+            references = prepare_references(context)
+            scores = score_methods(runs, references)
+            eval_seconds = time.perf_counter() - t_eval
+
+            metrics = RunMetrics(
+                featmap_version=__version__,
+                source=SourceRecord(kind=source.kind, name=source.name, location=str(source.location),
+                                    dimension=source.dimension, frames=list(map(int, source.frames)),
+                                    frames_processed=list(map(int, extraction.frames)),
+                                    skipped={str(k): v for k, v in sorted({**source.notes.skipped,
+                                                                           **extraction.skipped}.items())},
+                                    flags={k: list(map(int, v)) for k, v in source.notes.flags.items()}),
+                geo_frame=GeoRecord(**source.geo_origin.to_dict()) if source.geo_origin is not None else None,
+                references={name: ref.path for name, (_, ref) in references.items()},
+                primary=next(iter(references), None),
+                scans=ScanCounts(total=len(source), processed=len(extraction.frames),
+                                 extracted_now=extraction.extracted_now, from_cache=extraction.from_cache),
+                segments=len(table),
+                timings_s={"extraction": round(extraction.seconds, 3),
+                           "extraction_per_scan_median": _median(extraction.scan_seconds),
+                           "imports": round(import_seconds, 3),
+                           **{f"fusion_{r.name}": round(r.seconds, 4) for r in runs},
+                           "evaluation": round(eval_seconds, 3)},
+                methods={r.name: MethodRecord(count=len(r.result), clusters_dropped=r.result.clusters_dropped,
+                                              seconds=round(r.seconds, 4), scores=scores[r.name]) for r in runs},
+            )
+            primary = references.get(metrics.primary)
+            truth = primary[1].data if primary is not None and hasattr(primary[1].data, "walls") else None
+            products = RunProducts(table=table, results={r.name: r.result for r in runs}, frames=extraction.frames,
+                                   poses=extraction.poses, geo_frame=source.geo_origin, truth=truth,
+                                   config_yaml=self.config.to_yaml(), metrics=metrics, output=self.config.output)
+            t_write = time.perf_counter()
+            files = write_outputs(products, folder.tmp, self.outputs)
+            atomic_write_text(folder.tmp / "config.yaml", products.config_yaml)
+            metrics.timings_s["writing"] = round(time.perf_counter() - t_write, 3)
+            metrics.timings_s["total"] = round(time.perf_counter() - t0, 3)
+            write_run_metrics(folder.tmp / "metrics.json", metrics)
+            files += ["config.yaml", "metrics.json"]
+            folder.commit()
+        result = RunResult(Path(out), metrics, products, files)
+        report_run(result, self.reporter)
+        return result
+
+
+def _median(values: list[float]) -> float | None:
+    import statistics
+
+    return round(statistics.median(values), 4) if values else None
+
+
+SUMMARY_COLUMNS = [("count_ratio", 2, "count_ratio"), ("precision", 3, "precision"), ("recall", 3, "recall"),
+                   ("redundancy", 2, "redundancy"), ("offset_cm", 1, "offset cm"), ("corner_err_cm", 1, "corner cm")]
+
+
+def report_run(result: RunResult, reporter: Reporter) -> None:
+    """The summary table (one row per method) and a few lines on extraction, skips and files."""
+    m = result.metrics
+    columns = ["method", "features", "seconds"]
+    first = m.primary_scores(next(iter(m.methods))) if m.methods else {}
+    shown = [(key, nd, title) for key, nd, title in SUMMARY_COLUMNS if key in first]
+    columns += [title for _, _, title in shown]
+
+    def fmt(value, nd):
+        return "-" if value is None else f"{value:.{nd}f}"
+
+    rows = []
+    for name, record in m.methods.items():
+        scores = m.primary_scores(name)
+        rows.append([name, str(record.count), f"{record.seconds:.2f}"] + [fmt(scores.get(k), nd) for k, nd, _ in shown])
+    against = f", scored against {m.primary}" if m.primary else ", no reference to score against"
+    reporter.table(f"featmap run: {m.source.name} ({m.scans.processed} scans, {m.segments} segments{against})",
+                   columns, rows)
+    t = m.timings_s
+    per_scan = t.get("extraction_per_scan_median")
+    reporter.info(f"extraction {t['extraction']:.1f} s ({m.scans.extracted_now} scans extracted, {m.scans.from_cache} "
+                  "from cache" + (f", median {1000 * per_scan:.0f} ms/scan" if per_scan else "")
+                  + f"); total {t['total']:.1f} s")
+    if m.source.skipped:
+        reporter.warning(f"skipped {len(m.source.skipped)} bad scan(s): " + "; ".join(list(m.source.skipped.values())[:3]))
+    if m.source.flags.get("poor_gps"):
+        reporter.warning(f"{len(m.source.flags['poor_gps'])} frame(s) with poor GPS (navstat/numsats/pos_accuracy); "
+                         "their segments may be misplaced")
+    reporter.info(f"wrote {', '.join(result.files)} to {result.out} (figures: featmap figures {result.out})")

@@ -1,0 +1,163 @@
+"""The run folder: written whole or not at all, by one run at a time; and read back.
+
+A run writes into a temporary sibling (``.NAME.partial-PID``) and swaps it in place of ``--out`` at the
+end, so a crash, a full disk or Ctrl-C leaves the previous run folder as it was (never a mix of two
+runs). A lock file beside it (``.NAME.lock``) makes a second run into the same folder fail at once.
+Opening checks that the folder can be written, so a bad ``--out`` fails before any work.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from featmap.errors import FeatmapError
+
+
+class RunFolderError(FeatmapError):
+    """The run folder cannot be written (a file in the way, read-only, full disk, another run)."""
+
+
+class RunFolder:
+    """``with RunFolder(out) as folder:`` write into ``folder.tmp``, then ``folder.commit()``.
+
+    Leaving the block without ``commit`` (an error) removes the temporary folder and keeps ``out`` as it was.
+    """
+
+    def __init__(self, out: str | Path):
+        self.out = Path(out)
+        self.tmp: Path | None = None
+        self._lock_fd: int | None = None
+
+    def __enter__(self) -> "RunFolder":
+        out = self.out
+        if out.exists() and not out.is_dir():
+            raise RunFolderError(f"--out {out}: exists and is not a folder")
+        parent = out.parent if str(out.parent) else Path(".")
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except FileExistsError:
+            raise RunFolderError(f"--out {out}: {self._first_file(parent)} is a file, not a folder") from None
+        except OSError as exc:
+            raise RunFolderError(f"--out {out}: cannot create {parent} ({exc.strerror})") from None
+        lock = parent / f".{out.name}.lock"
+        try:
+            self._lock_fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise RunFolderError(f"--out {out}: cannot write in {parent} ({exc.strerror})") from None
+        try:
+            fcntl.flock(self._lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(self._lock_fd)
+            self._lock_fd = None
+            raise RunFolderError(f"--out {out}: another featmap run is writing to it; wait for it or choose another --out") from None
+        self.tmp = parent / f".{out.name}.partial-{os.getpid()}"
+        try:
+            if self.tmp.exists():
+                shutil.rmtree(self.tmp)
+            self.tmp.mkdir()
+        except OSError as exc:
+            self._release()
+            raise RunFolderError(f"--out {out}: cannot write in {parent} ({exc.strerror})") from None
+        return self
+
+    @staticmethod
+    def _first_file(path: Path) -> Path:
+        for p in [path, *path.parents]:
+            if p.exists() and not p.is_dir():
+                return p
+        return path
+
+    def commit(self) -> None:
+        """Replace ``out`` by the temporary folder (the previous contents are removed)."""
+        old = self.out.parent / f".{self.out.name}.old-{os.getpid()}"
+        try:
+            if self.out.exists():
+                os.replace(self.out, old)
+            os.replace(self.tmp, self.out)
+        except OSError as exc:
+            if old.exists() and not self.out.exists():
+                os.replace(old, self.out)
+            raise RunFolderError(f"--out {self.out}: cannot move the finished run into place ({exc.strerror})") from None
+        shutil.rmtree(old, ignore_errors=True)
+        self.tmp = None
+
+    def _release(self) -> None:
+        if self._lock_fd is not None:
+            fcntl.flock(self._lock_fd, fcntl.LOCK_UN)
+            os.close(self._lock_fd)
+            self._lock_fd = None
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            if self.tmp is not None and self.tmp.exists():
+                shutil.rmtree(self.tmp, ignore_errors=True)
+        finally:
+            self._release()
+        if isinstance(exc, OSError) and not isinstance(exc, FeatmapError):
+            where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
+            raise RunFolderError(f"--out {self.out}: writing the run failed{where}: {exc.strerror or exc}; "
+                                 "the previous contents are unchanged") from None
+
+
+# --- reading a run back ----------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class RunData:
+    """What ``featmap run`` wrote, in the run's local metric frame.
+
+    Attributes:
+        path: the run folder.
+        metrics: its metrics.json (typed).
+        config: its config.yaml (a FeatmapConfig).
+        segments: the extracted segments (segments.csv).
+        fused: method -> (segments (M, 4), support (M,)).
+        trajectory: (F, 2) sensor positions.
+        truth: the ground truth it was scored against (simulator truth or footprints), or None when that
+            reference is gone.
+    """
+
+    path: Path
+    metrics: Any
+    config: Any
+    segments: Any
+    fused: dict
+    trajectory: np.ndarray
+    truth: Any
+
+    @property
+    def frame(self):
+        return self.metrics.geo_frame.frame() if self.metrics.geo_frame is not None else None
+
+
+def load_run(run_dir: str | Path, config=None) -> RunData:
+    """Read a run folder back (its config, or ``config`` when given, e.g. with ``--set`` overrides)."""
+    from featmap.evaluation.references import load_simulator_truth, truth_from_footprints
+    from featmap.io.run_metrics import read_run_metrics
+    from featmap.io.segments_csv import read_fused_csv, read_segments_csv
+    from featmap.pipeline.config import load_config
+
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise RunFolderError(f"{run_dir}: not a folder (give a featmap run folder, e.g. runs/residential)")
+    metrics = read_run_metrics(run_dir / "metrics.json")
+    config = config if config is not None else load_config(run_dir / "config.yaml")
+    segments = read_segments_csv(run_dir / "segments.csv")
+    fused = {name: read_fused_csv(run_dir / f"fused_{name}.csv") for name in metrics.methods}
+    traj_path = run_dir / "trajectory.csv"
+    trajectory = np.loadtxt(traj_path, delimiter=",", skiprows=1, ndmin=2)[:, 1:3] if traj_path.exists() else np.zeros((0, 2))
+    frame = metrics.geo_frame.frame() if metrics.geo_frame is not None else None
+    truth = None
+    truth_dir = metrics.reference_path("truth", run_dir)
+    footprints = metrics.reference_path("footprints", run_dir)
+    if truth_dir is not None and truth_dir.exists():
+        truth = load_simulator_truth(truth_dir, frame, metrics.source.frames_processed)
+    elif footprints is not None and footprints.exists() and frame is not None:
+        truth = truth_from_footprints(footprints, frame)
+    return RunData(run_dir, metrics, config, segments, fused, trajectory, truth)

@@ -1,0 +1,154 @@
+"""MappingPipeline and ``featmap run`` on a small simulated drive."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from featmap.cli import app
+from featmap.datasets import KittiRawDataset
+from featmap.errors import DatasetError
+from featmap.io.run_metrics import read_run_metrics
+from featmap.pipeline import MappingPipeline, SegmentStore, load_config
+from featmap.reporting import RecordingReporter
+
+runner = CliRunner()
+
+
+def test_run_writes_the_output_contract_and_scores_against_truth(run_case1, tmp_path):
+    result = run_case1()
+    out = tmp_path / "run"
+    header = next(csv.reader(open(out / "segments.csv")))
+    assert header == ["scan", "x1", "y1", "x2", "y2", "n_points", "z_min", "z_max", "rms"]
+    for m in ("proposed", "density"):
+        assert next(csv.reader(open(out / f"fused_{m}.csv")))[:5] == ["x1", "y1", "x2", "y2", "support"]
+        fc = json.loads((out / f"fused_{m}.geojson").read_text())
+        assert fc["type"] == "FeatureCollection"
+        props = fc["features"][0]["properties"]
+        assert {"method", "support", "length_m", "scans"} <= set(props)
+        assert 1 <= props["scans"] <= props["support"]
+        lon, lat = fc["features"][0]["geometry"]["coordinates"][0]
+        assert 8.3 < lon < 8.5 and 48.9 < lat < 49.1
+    assert load_config(out / "config.yaml").fusion == load_config(None).fusion
+    saved = read_run_metrics(out / "metrics.json")
+    assert saved == result.metrics
+    assert saved.scans.processed == 40 and saved.segments > 40
+    assert set(saved.timings_s) >= {"extraction", "imports", "fusion_proposed", "total"}
+    assert saved.primary == "truth" and saved.references["truth"].endswith("truth")
+    proposed = saved.primary_scores("proposed")
+    # 32 m of driving along the south wall a-b of the one building: that wall, once, on the truth
+    assert proposed["observable_walls"] >= 1
+    assert proposed["precision"] > 0.95 and proposed["recall"] > 0.9
+    assert proposed["offset_cm"] < 5
+    assert saved.methods["proposed"].count <= proposed["observable_walls"] + 1
+    # the report names exactly the files written (plots are off here)
+    assert "map_overview.png" not in result.files and not (out / "map_overview.png").exists()
+    assert sorted(result.files) == sorted(p.name for p in out.iterdir())
+
+
+def test_refusing_never_reextracts_and_an_interrupted_run_resumes(run_case1, tmp_path):
+    first = run_case1().metrics
+    assert first.scans.extracted_now == 40 and first.scans.from_cache == 0
+    second = run_case1(["fusion.proposed.delta_deg=3", "fusion.proposed.eta_m=0.3"]).metrics
+    assert second.scans.extracted_now == 0 and second.scans.from_cache == 40
+    # an interrupted extraction leaves some scans uncached: only those are extracted again
+    entries = sorted((tmp_path / "cache").glob("*/*.npz"))
+    assert len(entries) == 40
+    for entry in entries[:3]:
+        entry.unlink()
+    third = run_case1().metrics
+    assert third.scans.extracted_now == 3
+    assert third.segments == first.segments
+    # a different extraction config is a different cache
+    fourth = run_case1(["extraction.ransac_planes.max_gap_m=2.0"]).metrics
+    assert fourth.scans.extracted_now == 40
+
+
+def test_parallel_workers_give_the_same_segments(run_case1, tmp_path):
+    run_case1(workers=1, out=tmp_path / "a", cache=tmp_path / "ca")
+    run_case1(workers=2, out=tmp_path / "b", cache=tmp_path / "cb")
+    a = (tmp_path / "a" / "segments.csv").read_bytes()
+    assert a == (tmp_path / "b" / "segments.csv").read_bytes()
+    for m in ("proposed", "density"):
+        assert (tmp_path / "a" / f"fused_{m}.csv").read_bytes() == (tmp_path / "b" / f"fused_{m}.csv").read_bytes()
+
+
+def test_bad_scan_fails_at_once_or_is_skipped_and_reported(drive_copy, tmp_path):
+    root, drive = drive_copy
+    scan = root / drive[:10] / f"{drive}_sync" / "velodyne_points" / "data" / "0000000005.bin"
+    pts = np.fromfile(scan, dtype=np.float32).reshape(-1, 4)
+    pts[0, 0] = np.nan
+    pts.tofile(scan)
+    cfg = load_config(None, ["output.plots=false"])
+    reporter = RecordingReporter()
+    pipe = MappingPipeline(cfg, ["proposed"], SegmentStore(tmp_path / "c"), reporter=reporter)
+    with pytest.raises(DatasetError, match="0000000005.bin: 1 point.*NaN.*--skip-bad-scans"):
+        pipe.run(KittiRawDataset(root, drive), tmp_path / "out")
+    assert not (tmp_path / "out").exists()                      # nothing written when the run fails
+    assert not list(tmp_path.glob(".out.partial*"))
+    assert len(list((tmp_path / "c").glob("*/*.npz"))) == 5      # it stopped at scan 5, not after all 40
+    pipe = MappingPipeline(cfg, ["proposed"], SegmentStore(tmp_path / "c"), reporter=reporter, skip_bad_scans=True)
+    metrics = pipe.run(KittiRawDataset(root, drive, skip_bad_scans=True), tmp_path / "out").metrics
+    assert list(metrics.source.skipped) == ["5"] and metrics.scans.processed == 39
+    assert any("skipped 1 bad scan" in w for w in reporter.warnings)
+
+
+def test_a_moved_run_folder_still_finds_its_truth(run_case1, tmp_path):
+    from featmap.pipeline.run_folder import load_run
+
+    run_case1()
+    moved = tmp_path / "elsewhere" / "run"
+    moved.parent.mkdir()
+    (tmp_path / "run").rename(moved)
+    run = load_run(moved)
+    assert run.truth is not None and len(run.truth.walls) == 4
+    assert run.metrics.source.frames_processed == list(range(40))
+
+
+def test_cli_run_on_a_given_drive_and_missing_drive(case1_drive, tmp_path):
+    res = runner.invoke(app, ["run", "--drive", case1_drive.drive, "--data-dir", str(case1_drive.root),
+                              "--frames", "0:40:2", "--method", "proposed", "--out", str(tmp_path / "r"),
+                              "--workers", "1", "--cache-dir", str(tmp_path / "c"), "--set", "output.plots=false"])
+    assert res.exit_code == 0, res.output
+    assert read_run_metrics(tmp_path / "r" / "metrics.json").scans.processed == 20
+    assert "proposed" in res.output and "precision" in res.output
+    res = runner.invoke(app, ["run", "--drive", "2011_09_30_drive_0018", "--data-dir", str(tmp_path / "nokitti"),
+                              "--out", str(tmp_path / "r2")])
+    assert res.exit_code == 2
+    assert "featmap download" in res.output and len(res.output.strip().splitlines()) == 1
+    assert not (tmp_path / "r2").exists()
+
+
+def test_cli_run_through_the_dataset_registry(case1_drive, tmp_path):
+    args = ["run", "--dataset", "kitti_raw", "--source", str(case1_drive.drive_dir), "--frames", "0:10",
+            "--method", "proposed", "--out", str(tmp_path / "r"), "--workers", "1", "--cache-dir", str(tmp_path / "c"),
+            "--set", "output.plots=false"]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    assert read_run_metrics(tmp_path / "r" / "metrics.json").source.kind == "kitti_raw"
+    res = runner.invoke(app, ["run", "--dataset", "kitti_raw", "--out", str(tmp_path / "r3")])
+    assert res.exit_code == 2 and "give its --source LOCATION" in res.output
+    res = runner.invoke(app, ["run", "--drive", case1_drive.drive, "--world", "residential"])
+    assert res.exit_code == 2 and "--drive and --world: give one source" in res.output
+
+
+def test_cli_evaluate_against_footprints(run_case1, case1_drive, tmp_path):
+    run_case1()
+    truth = case1_drive.drive_dir / "truth" / "footprints.geojson"
+    res = runner.invoke(app, ["evaluate", str(tmp_path / "run" / "fused_proposed.csv"), "--truth", str(truth),
+                              "--out", str(tmp_path / "m.json")])
+    assert res.exit_code == 0, res.output
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["precision"] > 0.95 and m["observable_walls"] == 4    # footprints: every wall counts
+    res = runner.invoke(app, ["evaluate", str(tmp_path / "run" / "fused_proposed.geojson"), "--truth", str(truth)])
+    assert res.exit_code == 0 and "precision" in res.output
+
+
+def test_footprints_from_the_config_score_a_run(run_case1, case1_drive, tmp_path):
+    footprints = case1_drive.drive_dir / "truth" / "footprints.geojson"
+    metrics = run_case1([f"evaluation.footprints={footprints}"]).metrics
+    assert metrics.primary == "truth" and set(metrics.references) == {"truth", "footprints"}
+    fp = metrics.methods["proposed"].scores["footprints"]
+    assert fp["observable_walls"] == 4 and fp["precision"] > 0.95
