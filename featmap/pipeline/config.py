@@ -44,5 +44,7 @@ def save_config(config: FeatmapConfig, path: str | Path) -> Path:
 
 
 def default_config_yaml() -> str:
-    """The defaults with one comment per key: the text of ``configs/default.yaml``."""
-    return commented_yaml(FeatmapConfig())
+    """The defaults with one comment per key: the text of ``configs/default.yaml`` (``featmap config``)."""
+    return ("# featmap default configuration: every parameter, its unit and what it does.\n"
+            "# Override with --config FILE and --set section.key=value (defaults < YAML < --set).\n"
+            + commented_yaml(FeatmapConfig()))

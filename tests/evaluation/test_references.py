@@ -1,0 +1,76 @@
+"""Ground truth from building footprints and from a simulated drive's truth folder; bad files in one line."""
+
+import json
+
+import numpy as np
+import pytest
+
+from featmap.errors import InputFileError
+from featmap.evaluation import EvaluationConfig, EvaluationContext
+from featmap.evaluation.plugins import Footprints, SimulatorTruth
+from featmap.evaluation.references import load_simulator_truth, truth_from_footprints
+from featmap.geo import GeoFrame
+
+FRAME = GeoFrame(49.011, 8.424)
+
+
+def _square(frame, x0=0.0, y0=0.0, size=10.0):
+    xs = np.array([x0, x0 + size, x0 + size, x0, x0])
+    ys = np.array([y0, y0, y0 + size, y0 + size, y0])
+    lat, lon = frame.to_wgs84(xs, ys)
+    return [[float(a), float(b)] for a, b in zip(lon, lat)]
+
+
+def _write(tmp_path, features):
+    path = tmp_path / "fp.geojson"
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
+    return path
+
+
+def test_footprints_become_walls_in_the_local_frame(tmp_path):
+    ring = _square(FRAME, 5, -3)
+    path = _write(tmp_path, [{"type": "Feature", "properties": {"id": "B1", "vertex_labels": list("abcd")},
+                              "geometry": {"type": "Polygon", "coordinates": [ring]}}])
+    truth = truth_from_footprints(path, FRAME)
+    assert truth.walls.shape == (4, 4) and np.abs(truth.walls[0] - [5, -3, 15, -3]).max() < 1e-6
+    assert truth.labels[0].tolist() == ["a", "b"] and truth.observable().all()
+
+
+@pytest.mark.parametrize("geometry,match", [
+    ({"type": "Polygon", "coordinates": [[["8.42", "49.01"], [8.43, 49.01], [8.43, 49.02]]]}, r"feature 0: a position must be \[lon, lat\] numbers"),
+    ({"type": "Polygon", "coordinates": [[[8.42, 49.01], [float("nan"), 49.01], [8.43, 49.02]]]}, r"feature 0: a position is not finite"),
+    ({"type": "Polygon", "coordinates": [[[49.01, 8.42], [491.0, 8.43], [49.02, 8.43]]]}, r"is not WGS84 \[lon, lat\]"),
+])
+def test_bad_positions_fail_in_one_line(tmp_path, geometry, match):
+    path = _write(tmp_path, [{"type": "Feature", "properties": {}, "geometry": geometry}])
+    with pytest.raises(InputFileError, match=match):
+        truth_from_footprints(path, FRAME)
+
+
+def test_empty_or_wrong_collections_fail(tmp_path):
+    with pytest.raises(InputFileError, match="no building Polygon"):
+        truth_from_footprints(_write(tmp_path, []), FRAME)
+    (tmp_path / "x.geojson").write_text("[1, 2]")
+    with pytest.raises(InputFileError, match="expected a GeoJSON FeatureCollection"):
+        truth_from_footprints(tmp_path / "x.geojson", FRAME)
+
+
+def test_simulator_truth_of_a_drive_and_its_plugin(case1_drive):
+    truth = load_simulator_truth(case1_drive.drive_dir / "truth")
+    assert len(truth.walls) == 4 and sorted(truth.labels.reshape(-1).tolist()) == sorted("aabbccdd")
+    few = load_simulator_truth(case1_drive.drive_dir / "truth", frames=[0, 1])
+    assert few.n_returns.sum() < truth.n_returns.sum()
+    ctx = EvaluationContext(case1_drive.drive_dir, list(range(40)), None, EvaluationConfig())
+    ref = SimulatorTruth().prepare(ctx)
+    assert ref is not None and ref.path.endswith("truth")
+    assert SimulatorTruth().prepare(EvaluationContext(case1_drive.root, None, None, EvaluationConfig())) is None
+    assert Footprints().prepare(ctx) is None                       # no footprints configured
+
+
+def test_a_damaged_truth_folder_fails_in_one_line(drive_copy):
+    root, drive = drive_copy
+    walls = root / drive[:10] / f"{drive}_sync" / "truth" / "walls.csv"
+    lines = walls.read_text().splitlines()
+    walls.write_text("\n".join(lines[:2] + [lines[2].replace(lines[2].split(",")[3], "nan", 1)]) + "\n")
+    with pytest.raises(InputFileError, match=r"walls.csv:3: wall coordinates must be finite"):
+        load_simulator_truth(walls.parent)

@@ -1,0 +1,64 @@
+"""The run folder is replaced whole or not at all, by one run at a time."""
+
+import pytest
+
+from featmap.pipeline.run_folder import RunFolder, RunFolderError
+
+
+def test_commit_replaces_the_folder_whole(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "old_only.txt").write_text("old")
+    (out / "metrics.json").write_text("old")
+    with RunFolder(out) as folder:
+        (folder.tmp / "metrics.json").write_text("new")
+        assert (out / "metrics.json").read_text() == "old"          # nothing changes before the commit
+        folder.commit()
+    assert sorted(p.name for p in out.iterdir()) == ["metrics.json"] and (out / "metrics.json").read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".run.lock", "run"]
+
+
+def test_a_failure_leaves_the_previous_run_untouched(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "metrics.json").write_text("old")
+    with pytest.raises(RunFolderError, match=r"writing the run failed .*No space left on device; the previous contents are unchanged"):
+        with RunFolder(out) as folder:
+            (folder.tmp / "fused_proposed.csv").write_text("new")
+            raise OSError(28, "No space left on device", str(folder.tmp / "map.html"))
+    assert [p.name for p in out.iterdir()] == ["metrics.json"] and (out / "metrics.json").read_text() == "old"
+    assert not list(tmp_path.glob(".run.partial*"))
+
+
+def test_a_second_run_into_the_same_folder_fails_at_once(tmp_path):
+    out = tmp_path / "run"
+    with RunFolder(out):
+        with pytest.raises(RunFolderError, match="another featmap run is writing to it"):
+            with RunFolder(out):
+                pass
+    with RunFolder(out) as folder:                                  # released afterwards
+        folder.commit()
+    assert out.is_dir()
+
+
+def test_bad_out_paths(tmp_path):
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(RunFolderError, match="exists and is not a folder"):
+        with RunFolder(tmp_path / "afile"):
+            pass
+    with pytest.raises(RunFolderError, match="afile is a file, not a folder"):
+        with RunFolder(tmp_path / "afile" / "run"):
+            pass
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        import os
+
+        if os.access(ro, os.W_OK):
+            pytest.skip("running as a user who can write anywhere")
+        with pytest.raises(RunFolderError, match="cannot write in"):
+            with RunFolder(ro / "run"):
+                pass
+    finally:
+        ro.chmod(0o755)
