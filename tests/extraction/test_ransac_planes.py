@@ -81,8 +81,12 @@ def test_segments_to_world_applies_the_pose():
     T[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
     T[:3, 3] = [100, 50, 2]
     world = segments_to_world(result, T)
-    # x = 12 in the velodyne frame becomes y = 50 + 12 after a 90 degree turn
+    # (x, y) in the velodyne frame becomes (100 - y, 50 + x) after a 90 degree turn: the wall at x = 12 from
+    # y = -10 to 8 lands at y = 62 from x = 110 to 92
     assert np.abs(world[0, [1, 3]] - 62).max() < 0.05
+    seg = result.segments[0]
+    assert world[0, [0, 2]] == pytest.approx(100 - seg[[1, 3]], abs=1e-9)
+    assert sorted(world[0, [0, 2]]) == pytest.approx([92, 110], abs=0.3)
 
 
 def test_real_kitti_scans():
