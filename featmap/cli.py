@@ -3,7 +3,8 @@
 Commands only parse flags, build the pieces (config, scan source, segment store, executor, reporter)
 and call into the library; heavy libraries (Open3D, pykitti, matplotlib, scikit-learn) are imported
 inside the commands so ``featmap --help`` is instant. Known errors (:class:`featmap.errors.FeatmapError`)
-print as one line and exit with status 2.
+and errors of the environment (``OSError``: a full disk, a read-only folder) print as one line naming the
+file and exit with status 2.
 """
 
 from __future__ import annotations
@@ -58,6 +59,9 @@ def command(func):
                 return func(*args, **kwargs)
         except FeatmapError as exc:
             _fail(str(exc))
+        except OSError as exc:     # the environment, not a bug: a full disk, a read-only folder, a vanished file
+            where = f"{exc.filename}: " if exc.filename else ""
+            _fail(f"{where}{exc.strerror or exc}")
         except KeyboardInterrupt:
             typer.echo("featmap: interrupted; finished files are complete, nothing half-written was kept.", err=True)
             raise typer.Exit(code=130)

@@ -183,6 +183,9 @@ def mean_shift(points: np.ndarray, bandwidth: float) -> np.ndarray:
 
     if len(points) < 2:
         return np.zeros(len(points), np.int64)
+    # Bin seeding snaps points to a grid anchored at 0: anchor it at the data instead, so that a translated
+    # input gives the same clusters.
+    points = points - points.min(axis=0)
     with warnings.catch_warnings():
         # "Binning data failed ... using data points as seeds": a harmless fallback for sparse data.
         warnings.filterwarnings("ignore", message="Binning data failed")

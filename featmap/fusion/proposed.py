@@ -40,7 +40,7 @@ _QUERY_CHUNK = 20_000
 class ProposedConfig(Section):
     """The paper's method (Section 3): three criteria, clustering, least squares."""
 
-    delta_deg: float = Field(5.0, ge=0, le=90, description="criterion 1: max included angle beta")
+    delta_deg: float = Field(5.0, gt=0, le=90, description="criterion 1: max included angle beta")
     gamma: float = Field(0.3, ge=0, le=1, description="criterion 2: min feature-circle overlap S_overlap/S_min")
     eta_m: float = Field(0.5, ge=0, description="criterion 3: max relative distance d_max")
     min_support: int = Field(4, ge=1, description="drop clusters with fewer member segments")

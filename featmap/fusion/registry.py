@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
 from pydantic import create_model
 
 from featmap.config import Section
@@ -20,6 +21,7 @@ from featmap.errors import ConfigError
 from featmap.fusion import density, meanshift, proposed
 from featmap.fusion.base import FusionMethod, FusionResult
 from featmap.fusion.corners import CornerConfig, optimise_corners
+from featmap.geometry import as_segments
 
 METHODS: tuple[FusionMethod, ...] = (proposed.METHOD, meanshift.METHOD, density.METHOD)
 FUSION_METHODS: dict[str, FusionMethod] = {m.name: m for m in METHODS}
@@ -57,6 +59,20 @@ def resolve_methods(spec: str | list[str] | None) -> list[str]:
     return list(dict.fromkeys(names))
 
 
+def working_origin(segments: np.ndarray) -> np.ndarray:
+    """(2,) a whole-kilometre point near the segments' median midpoint.
+
+    Methods work on coordinates relative to it, so a map far from its frame's origin (UTM northings,
+    1e6-1e9 m) is fused like the same map near 0: the result does not depend on a global translation, and
+    numerical libraries (scikit-learn's mean shift) see small numbers. Subtracting a whole number of
+    kilometres is exact in floating point, and a map within 500 m of its origin is not moved at all.
+    """
+    if len(segments) == 0:
+        return np.zeros(2)
+    mid = 0.5 * (segments[:, :2] + segments[:, 2:])
+    return np.round(np.median(mid, axis=0), -3)
+
+
 def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig()) -> FusionResult:  # type: ignore[valid-type]
     """Run method ``name`` with its section of ``config`` (the ``fusion:`` section), then corner optimisation.
 
@@ -65,6 +81,12 @@ def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig()) -> Fu
         scan: (N,) scan index of each segment.
     """
     method = get_method(name)
-    result = method.fuse(segments, scan, getattr(config, name))
+    segments = as_segments(segments)
+    origin = working_origin(segments[np.isfinite(segments).all(axis=1)])
+    shift = np.tile(origin, 2)
+    result = method.fuse(segments - shift, scan, getattr(config, name))
     before = result.segments_before_corners
-    return replace(result, segments=optimise_corners(before, config.corners))
+    after = optimise_corners(before, config.corners)
+    if not origin.any():
+        return replace(result, segments=after)
+    return replace(result, segments=after + shift, segments_before_corners=before + shift)

@@ -31,12 +31,15 @@ class SegmentTable:
         segments: (N, 4) ``x1, y1, x2, y2`` in metres.
         extra: optional per-segment columns, each (N,) (e.g. ``n_points``, ``z_min``, ``z_max``, ``rms``).
         skipped_zero_length: rows skipped on reading because both endpoints coincide.
+        skipped_duplicates: rows skipped on reading because they repeat an earlier row's scan and endpoints
+            (they would count twice in a feature's support).
     """
 
     scan: np.ndarray
     segments: np.ndarray
     extra: dict[str, np.ndarray] = field(default_factory=dict)
     skipped_zero_length: int = 0
+    skipped_duplicates: int = 0
 
     def __len__(self) -> int:
         return len(self.segments)
@@ -58,7 +61,7 @@ def write_segments_csv(path: str | Path, table: SegmentTable) -> Path:
 
 def _read_numeric_csv(path: Path, required: tuple[str, ...]) -> tuple[list[str], np.ndarray]:
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")      # a BOM (spreadsheets write one) is not part of the header
     except FileNotFoundError:
         raise InputFileError(path, "file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -97,9 +100,14 @@ def read_segments_csv(path: str | Path) -> SegmentTable:
         raise InputFileError(path, f"column 'scan': not an integer: {scan[bad[0]]}", line=int(bad[0]) + 2)
     segments = np.stack([col[c] for c in ("x1", "y1", "x2", "y2")], axis=1) if len(data) else np.zeros((0, 4))
     nonzero = (segments[:, 0] != segments[:, 2]) | (segments[:, 1] != segments[:, 3])
-    extra = {h: col[h][nonzero] for h in header if h not in SEGMENT_COLUMNS}
-    return SegmentTable(scan=scan[nonzero].astype(np.int64), segments=segments[nonzero], extra=extra,
-                        skipped_zero_length=int((~nonzero).sum()))
+    keys = np.column_stack([scan, segments])
+    _, first = np.unique(keys, axis=0, return_index=True)
+    unique = np.zeros(len(keys), bool)
+    unique[first] = True
+    keep = nonzero & unique
+    extra = {h: col[h][keep] for h in header if h not in SEGMENT_COLUMNS}
+    return SegmentTable(scan=scan[keep].astype(np.int64), segments=segments[keep], extra=extra,
+                        skipped_zero_length=int((~nonzero).sum()), skipped_duplicates=int((nonzero & ~unique).sum()))
 
 
 def write_fused_csv(path: str | Path, segments: np.ndarray, support: np.ndarray) -> Path:

@@ -43,6 +43,10 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
             result = fuse(name, table.segments, table.scan, config)
             runs.append(MethodRun(name, result, time.perf_counter() - start))
             advance(1)
+    for run in runs:
+        if len(run.result) == 0 and len(table) > 0:
+            reporter.warning(f"{run.name}: no feature from {len(table)} segments ({run.result.clusters_dropped} "
+                             f"clusters dropped); check the fusion.{run.name} settings")
     return runs
 
 
@@ -73,6 +77,9 @@ def fuse_and_write(table: SegmentTable, methods: list[str], config, out: str | P
                                     "seconds"], rows)
     if table.skipped_zero_length:
         reporter.info(f"skipped {table.skipped_zero_length} zero-length row(s) of the input (no direction, no feature circle)")
+    if table.skipped_duplicates:
+        reporter.warning(f"skipped {table.skipped_duplicates} duplicate row(s) of the input (same scan and endpoints "
+                         "as an earlier row; they would count twice in a feature's support)")
     reporter.info(f"library imports and warm-up took {import_seconds:.2f} s (not in the seconds above)")
     reporter.info(f"wrote {', '.join(f'fused_{r.name}.csv' for r in runs)} and config.yaml to {out}")
     return runs

@@ -59,13 +59,18 @@ class RunFolder:
             raise RunFolderError(f"--out {out}: another featmap run is writing to it; wait for it or choose another --out") from None
         self.tmp = parent / f".{out.name}.partial-{os.getpid()}"
         try:
-            if self.tmp.exists():
-                shutil.rmtree(self.tmp)
+            self._remove_leftovers(parent, out.name)
             self.tmp.mkdir()
         except OSError as exc:
             self._release()
             raise RunFolderError(f"--out {out}: cannot write in {parent} ({exc.strerror})") from None
         return self
+
+    @staticmethod
+    def _remove_leftovers(parent: Path, name: str) -> None:
+        """Temporary twins left by runs that were killed (we hold the lock, so no other run is writing)."""
+        for leftover in list(parent.glob(f".{name}.partial-*")) + list(parent.glob(f".{name}.old-*")):
+            shutil.rmtree(leftover, ignore_errors=True)
 
     @staticmethod
     def _first_file(path: Path) -> Path:

@@ -1,0 +1,170 @@
+"""Bad input files and flags: one line naming the file or flag, exit 2, nothing written."""
+
+import json
+
+import numpy as np
+import pytest
+
+from featmap.io.segments_csv import SegmentTable, read_fused_csv, write_segments_csv
+from featmap.simulation.segments import observe_walls
+from tests.faults.conftest import cli, one_line_error, run_args
+
+
+@pytest.fixture
+def segments_csv(tmp_path):
+    rng = np.random.default_rng(0)
+    segs, scan = observe_walls(np.array([[0, 0, 30, 0], [0, 15, 30, 15]], float), 10, 0.03, rng,
+                               first_scan=np.array([0, 0]))
+    return write_segments_csv(tmp_path / "segments.csv", SegmentTable(scan=scan, segments=segs))
+
+
+@pytest.mark.parametrize("text,needle", [
+    ("", "empty file; expected a header"),
+    ("scan,x1,y1,x2\n0,1,2,3\n", "missing column(s) y2"),
+    ("scan,x1,y1,x2,y2\n0,1,2,3\n", "segments.csv:2: expected 5 values, found 4"),
+    ("scan,x1,y1,x2,y2\n0,1,2,3,4\n0.5,1,2,3,5\n", "segments.csv:3: column 'scan': not an integer"),
+    ("scan,x1,y1,x2,y2\n0,1,2,inf,4\n", "segments.csv:2: column 'x2': inf is not a finite number"),
+    ("scan,x1,y1,x2,y2\n0,1,2,abc,4\n", "segments.csv:2: column 'x2': not a number"),
+])
+def test_malformed_segment_csvs(tmp_path, text, needle):
+    path = tmp_path / "segments.csv"
+    path.write_text(text)
+    one_line_error(cli("fuse", path, "--out", tmp_path / "o"), needle)
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_csv_that_is_not_text_or_is_missing(tmp_path):
+    (tmp_path / "bin.csv").write_bytes(b"\xff\xfe\x00\x01" * 10)
+    one_line_error(cli("fuse", tmp_path / "bin.csv", "--out", tmp_path / "o"), "bin.csv: cannot read")
+    one_line_error(cli("fuse", tmp_path / "none.csv", "--out", tmp_path / "o"), "none.csv: file not found")
+
+
+def test_a_bom_in_the_header_is_fine(tmp_path, segments_csv):
+    bom = tmp_path / "bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + segments_csv.read_bytes())
+    res = cli("fuse", bom, "--out", tmp_path / "o", "--method", "proposed")
+    assert res.exit_code == 0, res.output
+    assert len(read_fused_csv(tmp_path / "o" / "fused_proposed.csv")[0]) == 2
+
+
+def test_duplicate_rows_do_not_inflate_support(tmp_path, segments_csv):
+    lines = segments_csv.read_text().splitlines()
+    dup = tmp_path / "dup.csv"
+    dup.write_text("\n".join(lines + lines[1:6]) + "\n")
+    res = cli("fuse", dup, "--out", tmp_path / "o", "--method", "proposed")
+    assert res.exit_code == 0 and "skipped 5 duplicate row(s)" in res.output
+    assert sorted(read_fused_csv(tmp_path / "o" / "fused_proposed.csv")[1].tolist()) == [10, 10]
+
+
+def test_coordinates_far_from_the_origin_fuse_like_near_it(tmp_path, segments_csv):
+    """UTM-like northings (1e9 m): every method works and returns the same map, translated."""
+    lines = segments_csv.read_text().splitlines()
+    far = [lines[0]] + [",".join([r.split(",")[0], *(f"{float(v) + (5e8 if k % 2 else 3e5):.6f}"
+                                                      for k, v in enumerate(r.split(",")[1:5]))]) for r in lines[1:]]
+    (tmp_path / "far.csv").write_text("\n".join(far) + "\n")
+    assert cli("fuse", segments_csv, "--out", tmp_path / "near", "--method", "all").exit_code == 0
+    res = cli("fuse", tmp_path / "far.csv", "--out", tmp_path / "far", "--method", "all")
+    assert res.exit_code == 0, res.output
+    for method in ("proposed", "meanshift", "density"):
+        near, _ = read_fused_csv(tmp_path / "near" / f"fused_{method}.csv")
+        far_segs, _ = read_fused_csv(tmp_path / "far" / f"fused_{method}.csv")
+        assert len(near) == len(far_segs)
+        assert np.abs(far_segs - [3e5, 5e8, 3e5, 5e8] - near).max() < 1e-3, method
+
+
+@pytest.mark.parametrize("override,needle", [
+    ("fusion.proposed.delta_deg=0", "'fusion.proposed.delta_deg' input should be greater than 0"),
+    ("fusion.proposed.min_support=true", "'fusion.proposed.min_support' input should be a valid integer (got True)"),
+    ("fusion.proposed.gama=0.2", "unknown key 'fusion.proposed.gama' (did you mean 'fusion.proposed.gamma'?)"),
+    ("fusion.corners.mode=sharp", "'fusion.corners.mode' must be one of"),
+    ("novalue", "expected KEY=VALUE"),
+])
+def test_bad_settings(tmp_path, segments_csv, override, needle):
+    one_line_error(cli("fuse", segments_csv, "--out", tmp_path / "o", "--set", override), needle)
+    assert not (tmp_path / "o").exists()
+
+
+def test_bad_config_files(tmp_path, segments_csv):
+    latin = tmp_path / "latin.yaml"
+    latin.write_bytes("fusion:\n  proposed: {delta_deg: 5}  # d\xe9j\xe0\n".encode("latin-1"))
+    one_line_error(cli("fuse", segments_csv, "--out", tmp_path / "o", "--config", latin), "latin.yaml: not UTF-8 text")
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("fusion: [1, 2\n")
+    one_line_error(cli("fuse", segments_csv, "--out", tmp_path / "o", "--config", broken), "broken.yaml:2: not valid YAML")
+    one_line_error(cli("fuse", segments_csv, "--out", tmp_path / "o", "--config", tmp_path / "none.yaml"),
+                   "none.yaml: config file not found")
+
+
+def test_a_method_that_keeps_nothing_warns(tmp_path, segments_csv):
+    res = cli("fuse", segments_csv, "--out", tmp_path / "o", "--method", "proposed", "--set",
+              "fusion.proposed.min_support=1000")
+    assert res.exit_code == 0 and "proposed: no feature from 20 segments" in res.output
+
+
+def test_bad_drive_flags(case1_drive, tmp_path):
+    one_line_error(cli("run", "--drive", "drive18", "--out", tmp_path / "r"), "expected YYYY_MM_DD_drive_NNNN")
+    one_line_error(cli(*run_args(case1_drive, tmp_path / "r", tmp_path / "c", "--frames", "25:100")),
+                   "--frames 25:100: 2000_01_01_drive_0001 has 40 frames (0..39)")
+    one_line_error(cli(*run_args(case1_drive, tmp_path / "r", tmp_path / "c", "--frames", "a:b")), "expected integers")
+    one_line_error(cli("run", "--dataset", "pcap", "--source", tmp_path, "--out", tmp_path / "r"), "unknown format")
+    one_line_error(cli(*run_args(case1_drive, tmp_path / "r", tmp_path / "c", "--method", "kmeans")), "unknown method 'kmeans'")
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_truncated_oxts_packet_and_a_truncated_scan(drive_copy, tmp_path):
+    root, drive = drive_copy
+    d = root / drive[:10] / f"{drive}_sync"
+    (d / "oxts" / "data" / "0000000004.txt").write_text("49.0 8.4 100\n")
+    args = ["run", "--drive", drive, "--data-dir", root, "--out", tmp_path / "r", "--cache-dir", tmp_path / "c"]
+    one_line_error(cli(*args), "0000000004.txt: OXTS packet has 3 fields, expected 30")
+    res = cli(*args, "--skip-bad-scans", "--workers", "1", "--set", "output.plots=false")
+    assert res.exit_code == 0 and "skipped 1 bad scan" in res.output
+
+
+def _fused_run(case1_drive, tmp_path):
+    assert cli(*run_args(case1_drive, tmp_path / "r", tmp_path / "c", "--method", "proposed", "--frames", "0:10")).exit_code == 0
+    return tmp_path / "r"
+
+
+@pytest.mark.parametrize("features,needle", [
+    ([{"type": "Feature", "properties": {}, "geometry": {"type": "Polygon", "coordinates": [[["8.42", "49.01"], [8.43, 49.01], [8.43, 49.02]]]}}],
+     "a position must be [lon, lat] numbers"),
+    ([{"type": "Feature", "properties": {}, "geometry": {"type": "Polygon", "coordinates": [[[8.42, 49.01], [None, 49.01], [8.43, 49.02]]]}}],
+     "a position is not finite ([nan, 49.01])"),
+    ([], "no building Polygon in the FeatureCollection"),
+])
+def test_evaluate_against_bad_footprints(case1_drive, tmp_path, features, needle):
+    run = _fused_run(case1_drive, tmp_path)
+    fp = tmp_path / "fp.geojson"
+    fp.write_text(json.dumps({"type": "FeatureCollection", "features": features}).replace("null", "NaN"))
+    one_line_error(cli("evaluate", run / "fused_proposed.csv", "--truth", fp), needle)
+
+
+def test_evaluate_and_compare_with_wrong_files(case1_drive, tmp_path):
+    run = _fused_run(case1_drive, tmp_path)
+    one_line_error(cli("evaluate", run / "fused_proposed.csv", "--truth", tmp_path / "nothing"), "ground truth not found")
+    one_line_error(cli("evaluate", run / "fused_proposed.csv", "--truth", tmp_path), "not a simulated drive's truth/ folder")
+    one_line_error(cli("evaluate", run / "fused_proposed.csv", "--truth", case1_drive.drive_dir / "truth", "--origin", "north"),
+                   "--origin 'north': expected LAT,LON")
+    (run / "metrics.json").write_text(json.dumps({"schema_version": 2, "methods": [1, 2]}))
+    one_line_error(cli("compare", run), "metrics.json: not a featmap metrics file")
+    one_line_error(cli("figures", run), "metrics.json: not a featmap metrics file")
+    one_line_error(cli("compare", tmp_path / "nowhere"), "metrics.json: not found")
+    one_line_error(cli("figures", tmp_path / "nowhere"), "not a folder")
+
+
+def test_bad_sweep_files(tmp_path, segments_csv):
+    one_line_error(cli("sweep", tmp_path / "none.yaml"), "none.yaml: config file not found")
+    huge = tmp_path / "huge.yaml"
+    grid = "".join(f"  fusion.proposed.{k}: {{start: 0, stop: 1, num: 10000}}\n" for k in ("gamma", "eta_m"))
+    grid += "  fusion.proposed.delta_deg: {start: 1, stop: 90, num: 10000}\n"
+    huge.write_text(f"input: {segments_csv}\nmethods: [proposed]\ngrid:\n{grid}")
+    one_line_error(cli("sweep", huge, "--out", tmp_path / "s"), "1,000,000,000,000 combinations")
+    assert not (tmp_path / "s").exists()
+
+
+def test_simulate_flags(tmp_path):
+    one_line_error(cli("simulate", "--world", "nowhere", "--out", tmp_path / "s"), "nowhere")
+    one_line_error(cli("simulate", "--out", tmp_path / "s", "--sensor", "hdl32"), "--sensor 'hdl32'")
+    one_line_error(cli("simulate", "--out", tmp_path / "s", "--pose-noise", "big"), "--pose-noise 'big'")
+    assert not (tmp_path / "s").exists()

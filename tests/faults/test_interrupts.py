@@ -1,0 +1,65 @@
+"""SIGKILL in the middle of a run or a sweep, then the same command again: the same outputs as without it."""
+
+import csv
+import io
+import signal
+import time
+from pathlib import Path
+
+from featmap.io.run_metrics import read_run_metrics
+from tests.faults.conftest import cli, contract_files, featmap_process, run_args
+
+
+def _kill_when(process, ready, timeout=120.0):
+    deadline = time.time() + timeout
+    while time.time() < deadline and process.poll() is None:
+        if ready():
+            process.send_signal(signal.SIGKILL)
+            process.wait()
+            return True
+        time.sleep(0.01)
+    process.kill()
+    return False
+
+
+def test_a_killed_run_resumes_to_the_same_outputs(case1_drive, tmp_path):
+    reference = run_args(case1_drive, tmp_path / "ref", tmp_path / "cache_ref", "--method", "proposed,density")
+    assert cli(*reference).exit_code == 0
+    args = run_args(case1_drive, tmp_path / "r", tmp_path / "cache", "--method", "proposed,density")
+    process = featmap_process(*args)
+    killed = _kill_when(process, lambda: len(list((tmp_path / "cache").rglob("*.npz"))) >= 8)
+    assert killed, "the run finished before it could be killed"
+    assert not (tmp_path / "r").exists()                          # nothing that looks like a finished run
+    assert list(tmp_path.glob(".r.partial-*"))                    # only its temporary twin
+    res = cli(*args)
+    assert res.exit_code == 0, res.output
+    metrics = read_run_metrics(tmp_path / "r" / "metrics.json")
+    assert metrics.scans.from_cache >= 8 and metrics.scans.extracted_now <= 32
+    assert contract_files(tmp_path / "r") == contract_files(tmp_path / "ref")
+    assert not list(tmp_path.glob(".r.partial-*"))                # the killed run's leftovers are gone
+
+
+def _sweep_table(path: Path) -> list[dict]:
+    rows = list(csv.DictReader(io.StringIO(path.read_text())))
+    for row in rows:
+        row.pop("seconds")
+    return rows
+
+
+def test_a_killed_sweep_resumes_to_the_same_results(case1_drive, tmp_path):
+    assert cli(*run_args(case1_drive, tmp_path / "r", tmp_path / "cache", "--method", "proposed")).exit_code == 0
+    spec = tmp_path / "sweep.yaml"
+    spec.write_text(f"input: {tmp_path / 'r' / 'segments.csv'}\nmethods: [proposed, meanshift]\ngrid:\n"
+                    "  fusion.proposed.delta_deg: [1, 2, 3, 5, 8, 13]\n  fusion.proposed.eta_m: [0.2, 0.5, 1.0, 2.0]\n"
+                    "  fusion.meanshift.center_bandwidth_m: [1, 2, 3, 5, 8]\n")
+    assert cli("sweep", spec, "--out", tmp_path / "ref", "--workers", "1").exit_code == 0
+    process = featmap_process("sweep", spec, "--out", tmp_path / "s", "--workers", "1")
+    log = tmp_path / "s" / "results.jsonl"
+    killed = _kill_when(process, lambda: log.exists() and log.read_text().count("\n") >= 6)
+    assert killed, "the sweep finished before it could be killed"
+    done = log.read_text().count("\n") - 1
+    assert 5 <= done < 29
+    res = cli("sweep", spec, "--out", tmp_path / "s", "--workers", "1")
+    assert res.exit_code == 0, res.output
+    assert _sweep_table(tmp_path / "s" / "sweep.csv") == _sweep_table(tmp_path / "ref" / "sweep.csv")
+    assert (tmp_path / "s" / "best.yaml").read_bytes() == (tmp_path / "ref" / "best.yaml").read_bytes()

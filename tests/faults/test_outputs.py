@@ -1,0 +1,89 @@
+"""Output folders that are files, read-only, full, or busy with another run: one line, nothing half-written."""
+
+import json
+import shutil
+import time
+
+import numpy as np
+
+from featmap.io.segments_csv import SegmentTable, write_segments_csv
+from featmap.simulation.segments import observe_walls
+from tests.faults.conftest import cli, contract_files, featmap_process, one_line_error, run_args
+
+
+def _segments(tmp_path):
+    rng = np.random.default_rng(0)
+    segs, scan = observe_walls(np.array([[0, 0, 30, 0], [0, 15, 30, 15]], float), 10, 0.03, rng,
+                               first_scan=np.array([0, 0]))
+    return write_segments_csv(tmp_path / "segments.csv", SegmentTable(scan=scan, segments=segs))
+
+
+def test_out_is_a_file_for_every_command(case1_drive, tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_text("keep me")
+    seg = _segments(tmp_path)
+    one_line_error(cli(*run_args(case1_drive, afile, tmp_path / "c")), "--out")
+    assert not list((tmp_path / "c").rglob("*.npz"))                # failed before any extraction
+    one_line_error(cli(*run_args(case1_drive, afile / "run", tmp_path / "c")), "is a file, not a folder")
+    one_line_error(cli("fuse", seg, "--out", afile), "exists and is not a folder")
+    one_line_error(cli("simulate", "--world", "prescan_case1", "--out", afile, "--frames", "3"), "exists and is not a folder")
+    one_line_error(cli("evaluate", tmp_path / "x.csv", "--truth", case1_drive.drive_dir / "truth", "--out", tmp_path),
+                   "x.csv")
+    assert afile.read_text() == "keep me"
+
+
+def test_figures_and_evaluate_outputs_that_cannot_be_written(case1_drive, tmp_path):
+    assert cli(*run_args(case1_drive, tmp_path / "r", tmp_path / "c", "--method", "proposed", "--frames", "0:10")).exit_code == 0
+    (tmp_path / "afile").write_text("x")
+    one_line_error(cli("figures", tmp_path / "r", "--out", tmp_path / "afile"), "afile")
+    truth = case1_drive.drive_dir / "truth"
+    one_line_error(cli("evaluate", tmp_path / "r" / "fused_proposed.csv", "--truth", truth, "--out", tmp_path),
+                   "is a folder; give a .json file path")
+
+
+def test_a_read_only_output_folder(case1_drive, tmp_path, small_disk):
+    ro = small_disk("1m", ro=True)
+    one_line_error(cli(*run_args(case1_drive, ro / "run", tmp_path / "c")), f"--out {ro / 'run'}")
+    assert not list((tmp_path / "c").rglob("*.npz"))                # before any extraction
+    one_line_error(cli("fuse", _segments(tmp_path), "--out", ro / "f"), "Read-only file system")
+    one_line_error(cli("simulate", "--world", "prescan_case1", "--out", ro / "sim", "--frames", "3"), "Read-only file system")
+
+
+def test_a_full_disk_mid_run_keeps_the_previous_run_whole(case1_drive, tmp_path, small_disk):
+    disk = small_disk("400k")
+    out = disk / "run"
+    args = run_args(case1_drive, out, tmp_path / "c", "--method", "proposed", "--frames", "0:6")
+    assert cli(*args).exit_code == 0
+    before = contract_files(out)
+    free = shutil.disk_usage(disk).free
+    (disk / "filler").write_bytes(b"\0" * max(0, free - 20_000))        # leave less than a run needs
+    res = cli(*run_args(case1_drive, out, tmp_path / "c", "--method", "proposed,density", "--frames", "0:40"))
+    one_line_error(res, "No space left on device")
+    assert contract_files(out) == before                               # the previous run, not a mix of two
+    assert sorted(p.name for p in disk.iterdir()) == [".run.lock", "filler", "run"]
+
+
+def test_a_full_disk_for_fuse_writes_nothing_half(tmp_path, small_disk):
+    disk = small_disk("64k")
+    seg = _segments(tmp_path)
+    free = shutil.disk_usage(disk).free
+    (disk / "filler").write_bytes(b"\0" * max(0, free - 4096))
+    one_line_error(cli("fuse", seg, "--out", disk / "f", "--method", "all"), "No space left on device")
+    assert not list(disk.rglob("*.tmp"))                            # no half-written file left behind
+    assert all(p.stat().st_size > 0 for p in disk.rglob("*.csv"))
+
+
+def test_two_runs_into_one_folder_at_once(case1_drive, tmp_path):
+    args = run_args(case1_drive, tmp_path / "r", tmp_path / "c", "--method", "all")
+    first = featmap_process(*args)
+    lock = tmp_path / ".r.lock"
+    deadline = time.time() + 60
+    while not list(tmp_path.glob(".r.partial-*")) and time.time() < deadline and first.poll() is None:
+        time.sleep(0.02)
+    second = featmap_process(*args)
+    out2, err2 = second.communicate(timeout=120)
+    out1, err1 = first.communicate(timeout=300)
+    assert first.returncode == 0, err1[-2000:]
+    assert second.returncode == 2 and "another featmap run is writing to it" in err2
+    assert len([line for line in err2.splitlines() if line.startswith("featmap: error")]) == 1
+    assert lock.exists() and json.loads((tmp_path / "r" / "metrics.json").read_text())["scans"]["processed"] == 40

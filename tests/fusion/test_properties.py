@@ -1,0 +1,88 @@
+"""Properties every fusion method keeps on any finite input (hypothesis).
+
+Any input (duplicates, zero-length rows, collinear walls, huge coordinates, one scan or thousands) gives
+finite output without a crash; the fused map does not depend on the order of the rows, nor on a global
+translation of the coordinates (translated by up to 1e6 m: the same map, translated, within 1 mm).
+"""
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from featmap.fusion import FUSION_METHODS, FusionConfig, fuse
+
+CONFIG = FusionConfig.model_validate({"proposed": {"min_support": 2}})
+SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+@st.composite
+def segment_sets(draw, max_walls=6):
+    """Noisy partial views of a few walls, plus duplicates, zero-length rows and stray segments."""
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    n_walls = draw(st.integers(1, max_walls))
+    n_scans = draw(st.sampled_from([1, 3, 40, 3000]))
+    starts = rng.uniform(-60, 60, (n_walls, 2))
+    angles = rng.choice([0.0, np.pi / 2, rng.uniform(0, np.pi)], n_walls)
+    lengths = rng.uniform(0.5, 40, n_walls)
+    rows, scans = [], []
+    for w in range(n_walls):
+        d = np.array([np.cos(angles[w]), np.sin(angles[w])])
+        for _ in range(int(rng.integers(1, 12))):
+            a, b = np.sort(rng.uniform(0, 1, 2))
+            p, q = starts[w] + a * lengths[w] * d, starts[w] + b * lengths[w] * d
+            rows.append(np.concatenate([p, q]) + rng.normal(0, draw(st.sampled_from([0.0, 0.01, 0.05])), 4))
+            scans.append(int(rng.integers(0, n_scans)))
+    segments = np.asarray(rows)
+    if draw(st.booleans()):                                   # exact duplicates
+        segments = np.vstack([segments, segments[:3]])
+        scans += scans[:3]
+    if draw(st.booleans()):                                   # zero-length rows
+        segments = np.vstack([segments, [[5.0, 5.0, 5.0, 5.0]]])
+        scans.append(0)
+    return segments, np.asarray(scans, np.int64)
+
+
+def _canonical(segments: np.ndarray) -> np.ndarray:
+    """Undirected segments in a canonical order (endpoints sorted, rows sorted), rounded to 0.1 mm."""
+    ends = segments.reshape(-1, 2, 2)
+    flip = (ends[:, 0, 0] > ends[:, 1, 0]) | ((ends[:, 0, 0] == ends[:, 1, 0]) & (ends[:, 0, 1] > ends[:, 1, 1]))
+    ends[flip] = ends[flip][:, ::-1]
+    rows = np.round(ends.reshape(-1, 4), 4)
+    return rows[np.lexsort(rows.T[::-1])]
+
+
+@pytest.mark.parametrize("name", list(FUSION_METHODS))
+@SETTINGS
+@given(data=segment_sets())
+def test_finite_input_gives_finite_output(name, data):
+    segments, scan = data
+    result = fuse(name, segments, scan, CONFIG)
+    assert np.isfinite(result.segments).all()
+    assert result.segments.shape == (len(result.support), 4)
+    assert result.support.sum() == (result.labels >= 0).sum()
+    assert len(result.labels) == len(segments)
+
+
+@pytest.mark.parametrize("name", list(FUSION_METHODS))
+@SETTINGS
+@given(data=segment_sets(), seed=st.integers(0, 1000))
+def test_the_order_of_the_rows_does_not_matter(name, data, seed):
+    segments, scan = data
+    order = np.random.default_rng(seed).permutation(len(segments))
+    a = fuse(name, segments, scan, CONFIG).segments
+    b = fuse(name, segments[order], scan[order], CONFIG).segments
+    assert len(a) == len(b)
+    assert np.abs(_canonical(a.copy()) - _canonical(b.copy())).max(initial=0.0) < 1e-3
+
+
+@pytest.mark.parametrize("name", list(FUSION_METHODS))
+@SETTINGS
+@given(data=segment_sets(), dx=st.floats(-1e6, 1e6), dy=st.floats(-1e6, 1e6))
+def test_a_global_translation_moves_the_map_and_nothing_else(name, data, dx, dy):
+    segments, scan = data
+    shift = np.array([dx, dy, dx, dy])
+    a = fuse(name, segments, scan, CONFIG).segments
+    b = fuse(name, segments + shift, scan, CONFIG).segments
+    assert len(a) == len(b)
+    assert np.abs(_canonical(a.copy()) - _canonical(b - shift)).max(initial=0.0) < 1e-3
