@@ -95,7 +95,7 @@ def load_truth(truth_dir: str | Path, frame: GeoFrame | None = None, frames: lis
     other, poles = [], []
     for obj in objects:
         geom = obj["geometry"]
-        if obj["kind"] == "fence":
+        if obj["kind"] in ("fence", "hedge"):
             line = np.asarray(geom["coordinates"], float)
             other += [np.concatenate([a, b]) for a, b in zip(line[:-1], line[1:])]
         elif obj["kind"] == "car":
