@@ -216,11 +216,11 @@ def _num(value, fmt: str) -> str:
 def print_report(results: list[WorldResult], methods: list[str], split: str, wall_seconds: float, workers: int,
                  console: Console) -> None:
     table = Table(title=f"per-scan extraction against observations ({split} worlds)")
-    for col in ("world", "sensor", "scans", "obs", "obs recall", "50-300 hits", f">{FAR_M:.0f} m", "per-scan cov.",
-                "segment cov.", "segments/scan", "ms/scan", "points/scan"):
-        table.add_column(col, justify="left" if col in ("world", "sensor") else "right")
+    for col in ("seed", "sensor, step, noise, dropout", "scans", "obs", "obs recall", "50-300 hits (n)",
+                f">{FAR_M:.0f} m (n)", "per-scan cov.", "segment cov.", "segs/scan", "ms/scan", "points/scan"):
+        table.add_column(col, justify="left" if col in ("seed", "sensor, step, noise, dropout") else "right")
     for r in results:
-        table.add_row(f"procedural_{r.seed}", r.label, str(r.scans), str(r.n_obs), _share(r.found, r.n_obs),
+        table.add_row(str(r.seed), r.label, str(r.scans), str(r.n_obs), _share(r.found, r.n_obs),
                       f"{_share(*r.few)} ({r.few[1]})", f"{_share(*r.far)} ({r.far[1]})",
                       _num(r.covered_m / r.observed_m if r.observed_m else None, ".3f"),
                       _num(r.segment_coverage, ".3f"), f"{r.segments / max(r.scans, 1):.1f}",
@@ -230,7 +230,7 @@ def print_report(results: list[WorldResult], methods: list[str], split: str, wal
     far = (tot(lambda r: r.far[0]), tot(lambda r: r.far[1]))
     cov = [r.segment_coverage for r in results if r.segment_coverage is not None]
     all_ms = [m for r in results for m in r.extract_ms]
-    table.add_row("[b]overall[/b] (pooled; segment cov. mean / min)", "", str(tot(lambda r: r.scans)),
+    table.add_row("[b]all[/b]", "pooled (segment cov.: mean / min)", str(tot(lambda r: r.scans)),
                   str(tot(lambda r: r.n_obs)), f"[b]{_share(tot(lambda r: r.found), tot(lambda r: r.n_obs))}[/b]",
                   f"{_share(*few)} ({few[1]})", f"{_share(*far)} ({far[1]})",
                   _num(tot(lambda r: r.covered_m) / tot(lambda r: r.observed_m) if tot(lambda r: r.observed_m) else None, ".3f"),
@@ -243,14 +243,14 @@ def print_report(results: list[WorldResult], methods: list[str], split: str, wal
                   f"[b]{n_scans / wall_seconds:.1f} scans/s[/b] (reading included; provisional on a shared machine)")
 
     table = Table(title=f"fused maps, default configuration ({split} worlds; truth = union of counting observations)")
-    for col in ("world", "method", "features", "walls", "precision", "recall", "coverage - recall", "redundancy",
+    for col in ("seed", "method", "features", "walls", "precision", "recall", "coverage - recall", "redundancy",
                 "offset cm", "corner cm", "fusion s"):
-        table.add_column(col, justify="left" if col in ("world", "method") else "right")
+        table.add_column(col, justify="left" if col in ("seed", "method") else "right")
     for r in results:
         for name in methods:
             m = r.methods[name]
             gap = None if (m["recall"] is None or r.segment_coverage is None) else r.segment_coverage - m["recall"]
-            table.add_row(f"procedural_{r.seed}", name, str(m["count"]), str(m["observable_walls"]),
+            table.add_row(str(r.seed), name, str(m["count"]), str(m["observable_walls"]),
                           _num(m["precision"], ".3f"), _num(m["recall"], ".3f"), _num(gap, "+.3f"),
                           _num(m["redundancy"], ".2f"), _num(m["offset_cm"], ".2f"), _num(m["corner_err_cm"], ".1f"),
                           f"{m['fusion_seconds']:.2f}")
@@ -285,7 +285,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sim-root", type=Path, default=Path("data/sim"), help="where drives are cached")
     parser.add_argument("--json", type=Path, help="also write every number to this JSON file")
     args = parser.parse_args(argv)
-    console = Console(highlight=False, width=None if os.isatty(1) else 160)
+    console = Console(highlight=False, width=None if os.isatty(1) else 200)
     try:
         return _run(args, console)
     except FeatmapError as exc:
@@ -311,6 +311,8 @@ def _run(args, console: Console) -> int:
     extraction_config = (config.extraction.model_dump(mode="json")
                          if any(o.startswith("extraction.") for o in args.overrides) else None)
     selection = parse_frames(args.frames)
+    console.print(f"{args.split} split: {len(seeds)} world(s) (seeds {', '.join(map(str, seeds))}), frames "
+                  f"{args.frames or 'all'}, extractor {args.extractor}, {workers} worker(s)")
     ctx = mp.get_context("spawn")            # Open3D and fork do not mix
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 

@@ -82,27 +82,25 @@ def split_seeds(split: str) -> tuple[int, ...]:
 
 def generate_world(seed: int) -> World:
     """The validated world of ``seed`` (the same seed always gives the same world)."""
-    return generate(seed).world
+    rng = np.random.default_rng([int(seed), 18])
+    scene = _StreetScene(rng)
+    scene.build()
+    return world_from_dict(scene.to_dict(f"procedural_{seed}", seed), f"procedural world {seed}")
 
 
 def drive_settings(seed: int) -> DriveSettings:
-    """Sensor, noise and dropout of ``seed``'s world."""
-    return generate(seed).settings
+    """Sensor, azimuth step, noise and dropout of ``seed``'s world (drawn apart from its geometry)."""
+    rng = np.random.default_rng([int(seed), 18, 1])
+    name = SENSOR_CYCLE[int(seed) % len(SENSOR_CYCLE)]
+    lo, hi = AZIMUTH_STEP_RANGE_DEG[name]
+    sensor = SENSORS[name].with_azimuth_step(round(float(rng.uniform(lo, hi)), 3))
+    return DriveSettings(sensor=sensor, noise_m=round(float(rng.uniform(0.01, 0.03)), 4),
+                         dropout=round(float(rng.uniform(0.0, 0.10)), 3), seed=int(seed))
 
 
 def generate(seed: int) -> GeneratedDrive:
     """World and simulation settings of ``seed``."""
-    rng = np.random.default_rng([int(seed), 18])
-    scene = _StreetScene(rng)
-    scene.build()
-    data = scene.to_dict(f"procedural_{seed}", seed)
-    world = world_from_dict(data, f"procedural world {seed}")
-    name = SENSOR_CYCLE[int(seed) % len(SENSOR_CYCLE)]
-    lo, hi = AZIMUTH_STEP_RANGE_DEG[name]
-    sensor = SENSORS[name].with_azimuth_step(round(float(rng.uniform(lo, hi)), 3))
-    settings = DriveSettings(sensor=sensor, noise_m=round(float(rng.uniform(0.01, 0.03)), 4),
-                             dropout=round(float(rng.uniform(0.0, 0.10)), 3), seed=int(seed))
-    return GeneratedDrive(int(seed), world, settings)
+    return GeneratedDrive(int(seed), generate_world(seed), drive_settings(seed))
 
 
 # --- the scene, built in a street frame (x along the main street, y to its left), then rotated ------
