@@ -9,11 +9,12 @@ curbs; hdl64, vlp32, vls128 or vlp16 with 0.1-0.4 deg azimuth steps, 1-3 cm rang
 dropout). ``--split tuning`` (default) uses ``TUNING_SEEDS``, the worlds to develop and tune on;
 ``--split heldout`` uses ``HELDOUT_SEEDS``, which must never be used while tuning: run it only to
 report how final defaults generalise. Each drive is simulated on first use into
-``data/sim/<split>/procedural_<seed>`` (re-simulated when the generator changed it) with per-scan
-ground truth (``truth/observations.npz``).
+``data/sim/<split>/procedural_<seed>`` with per-scan ground truth (``truth/observations.npz``).
 
 The default covers every frame of every world of the split (8 tuning or 10 held-out worlds, about
-150-260 scans each at 10 Hz; first use simulates them, ~25 s and ~0.3-0.7 GB per world).
+150-240 scans each at 10 Hz). First use simulates them (10-60 s and 0.1-0.5 GB per world), and so
+does any change to the generator or to the simulator's code. After that, the tuning split takes
+about 4 min on 2 busy cores with the current extractor (3.5 min of it extraction).
 ``--frames ::2`` halves the scans (fused maps then see each wall from half as many places).
 
 Per world and overall it prints:
@@ -74,9 +75,14 @@ FEW_HITS = (50, 300)
 # --- drives ------------------------------------------------------------------------------------------
 
 def _fingerprint(seed: int) -> str:
+    """What a cached drive was made from: the world, its settings and the simulator's source."""
+    import featmap.simulation as simulation
+
     g = generate(seed)
+    sources = sorted(Path(simulation.__file__).parent.glob("*.py"))
     spec = {"world": g.world.model_dump(mode="json"), "sensor": g.settings.sensor.__dict__,
-            "noise_m": g.settings.noise_m, "dropout": g.settings.dropout, "seed": g.settings.seed}
+            "noise_m": g.settings.noise_m, "dropout": g.settings.dropout, "seed": g.settings.seed,
+            "simulator": hashlib.sha256(b"".join(p.read_bytes() for p in sources)).hexdigest()}
     return hashlib.sha256(json.dumps(spec, sort_keys=True, default=list).encode()).hexdigest()[:16]
 
 
@@ -84,20 +90,25 @@ def drive_root(sim_root: Path, split: str, seed: int) -> Path:
     return sim_root / split / f"procedural_{seed}"
 
 
+def is_current(sim_root: Path, split: str, seed: int) -> bool:
+    """True when ``seed``'s drive is cached and was simulated from the world the generator makes now."""
+    root = drive_root(sim_root, split, seed)
+    stamp = root / "generator.json"
+    done = (root / SIM_DATE / f"{DRIVE}_sync" / "truth" / "observations.npz").exists()
+    return done and stamp.exists() and json.loads(stamp.read_text()).get("fingerprint") == _fingerprint(seed)
+
+
 def ensure_drive(sim_root: Path, split: str, seed: int) -> Path:
     """The KITTI raw root of ``seed``'s drive, simulated (with per-scan truth) if missing or stale."""
     root = drive_root(sim_root, split, seed)
-    stamp = root / "generator.json"
-    fingerprint = _fingerprint(seed)
-    done = (root / SIM_DATE / f"{DRIVE}_sync" / "truth" / "observations.npz").exists()
-    if done and stamp.exists() and json.loads(stamp.read_text()).get("fingerprint") == fingerprint:
+    if is_current(sim_root, split, seed):
         return root
     if root.exists():
         shutil.rmtree(root)
     g = generate(seed)
     s = g.settings
     simulate_drive(g.world, root, s.sensor, noise_m=s.noise_m, dropout=s.dropout, seed=s.seed, scan_observations=True)
-    stamp.write_text(json.dumps({"seed": seed, "fingerprint": fingerprint}))
+    (root / "generator.json").write_text(json.dumps({"seed": seed, "fingerprint": _fingerprint(seed)}))
     return root
 
 
@@ -316,9 +327,10 @@ def _run(args, console: Console) -> int:
     ctx = mp.get_context("spawn")            # Open3D and fork do not mix
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-    missing = [s for s in seeds if not (drive_root(args.sim_root, args.split, s) / "generator.json").exists()]
+    missing = [s for s in seeds if not is_current(args.sim_root, args.split, s)]
     if missing:
-        console.print(f"simulating {len(missing)} {args.split} world(s) into {args.sim_root / args.split} (first use)")
+        console.print(f"simulating {len(missing)} {args.split} world(s) into {args.sim_root / args.split} "
+                      "(first use, or the generator changed them)")
     start = time.perf_counter()
     with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
         for seed, seconds in pool.map(_simulate_task, [(str(args.sim_root), args.split, s) for s in seeds]):
