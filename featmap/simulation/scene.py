@@ -24,7 +24,7 @@ REFLECTANCE = {"ground": 0.12, "building": 0.32, "roof": 0.3, "fence": 0.4, "car
                "hedge": 0.18}
 SLOPE_PIECE_M = 1.0
 SLOPE_SINK_M = 0.15
-HEDGE_BOX_M = 0.7           # mean length of one box of a hedge
+HEDGE_BOX_M = 0.7           # longest box of a hedge (its segments are cut into equal boxes up to this long)
 
 
 @dataclass
