@@ -61,7 +61,7 @@ from featmap.config import load_config
 from featmap.datasets import KittiRawDataset, parse_frames
 from featmap.errors import FeatmapError
 from featmap.evaluation import compute_metrics, load_truth
-from featmap.fusion import FUSION_METHODS, fuse
+from featmap.fusion import fuse
 from featmap.observation_metrics import match_observations, truth_from_observations, union_coverage
 from featmap.simulation.observations import read_observations
 from featmap.simulation.procedural import generate, split_seeds
@@ -186,7 +186,7 @@ class WorldResult:
     methods: dict
 
 
-def score_world(root: Path, seed: int, frames: list[int], segments: np.ndarray, scan: np.ndarray, config,
+def score_world(root: Path, frames: list[int], segments: np.ndarray, scan: np.ndarray, config,
                 methods: list[str]) -> dict:
     """Observation recall, coverage and every method's fused metrics for one world's extracted segments."""
     ds = KittiRawDataset(root, DRIVE)
@@ -365,7 +365,7 @@ def _run(args, console: Console) -> int:
         segments = np.concatenate(acc["segments"]) if acc["segments"] else np.zeros((0, 4))
         scan = np.concatenate(acc["scan"]) if acc["scan"] else np.zeros(0, np.int64)
         root = drive_root(args.sim_root, args.split, seed)
-        scored = score_world(root, seed, frames_of[seed], segments, scan, config, methods)
+        scored = score_world(root, frames_of[seed], segments, scan, config, methods)
         g = generate(seed).settings
         label = f"{g.sensor.name} {g.sensor.azimuth_step_deg:.2f}° {100 * g.noise_m:.1f}cm {100 * g.dropout:.0f}%"
         results.append(WorldResult(seed, label, len(frames_of[seed]), scored["n_obs"], scored["found"], scored["few"],
