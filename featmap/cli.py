@@ -308,7 +308,7 @@ def simulate(
     world: str = typer.Option("residential", "--world", "-w", help="Built-in world name or a .yaml/.geojson world file."),
     out: Path = typer.Option(..., "--out", "-o", help="KITTI raw root to write the drive into."),
     frames: Optional[int] = typer.Option(None, "--frames", "-n", min=2, help="Number of frames (default: the whole route)."),
-    sensor: str = typer.Option("hdl64", "--sensor", help="hdl64 (KITTI) or vlp32 (the paper's PreScan sensor)."),
+    sensor: str = typer.Option("hdl64", "--sensor", help="hdl64 (KITTI), vlp32 (the paper's PreScan sensor), vls128 or vlp16."),
     noise: float = typer.Option(0.02, "--noise", min=0.0, help="Gaussian range noise sigma, metres."),
     pose_noise: str = typer.Option("0,0", "--pose-noise", help="OXTS pose error: position sigma (m), yaw sigma (deg)."),
     dropout: float = typer.Option(0.0, "--dropout", min=0.0, max=0.99, help="Probability that a return is lost."),

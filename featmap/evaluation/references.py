@@ -59,7 +59,7 @@ def load_simulator_truth(truth_dir: str | Path, frame: GeoFrame | None = None,
     other, poles = [], []
     for obj in read_objects_local(truth_dir):
         geom = obj.get("geometry") or {}
-        if obj.get("kind") == "fence":
+        if obj.get("kind") in ("fence", "hedge"):
             line = np.asarray(geom["coordinates"], float)
             other += [np.concatenate([a, b]) for a, b in zip(line[:-1], line[1:])]
         elif obj.get("kind") == "car":

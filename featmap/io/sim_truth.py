@@ -5,7 +5,12 @@
 - ``coverage.npz``: which wall bins each frame saw (``frame``, ``bin``, ``count`` per row, plus
   ``bin_offset`` per wall, ``bin_m`` and ``min_bin_returns``), so a selection of frames is scored fairly;
 - ``objects_local.json``: every object with its kind and geometry (local frame);
-- ``simulation.json``: the simulation's parameters, seed and geo origin.
+- ``simulation.json``: the simulation's parameters, seed and geo origin;
+- ``observations.npz`` (drives simulated with per-scan truth): every (scan, wall) pair with at least one
+  return: the rays that hit the wall (after dropout and the sensor's range limits, no other range cap) and
+  the stretches of the wall they landed on (:class:`ScanObservations`). An observation *counts* with at
+  least :data:`MIN_HITS` hits and :data:`MIN_OBSERVED_M` metres observed, the per-scan version of
+  EVALUATION.md's observable wall; walls 50-100 m away count whenever they are sampled that densely.
 
 Readers raise one-line :class:`InputFileError` naming the file (and line).
 """
@@ -21,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from featmap.errors import InputFileError
+from featmap.io.atomic import atomic_path
 from featmap.io.jsonfile import read_json
 
 COVERAGE_BIN_M = 0.5
@@ -99,8 +105,6 @@ def read_walls_csv(path: str | Path) -> TruthWalls:
 
 def write_coverage(path: Path, per_frame: list[tuple[np.ndarray, np.ndarray, np.ndarray]], bin_offset: np.ndarray) -> None:
     """``coverage.npz`` from per-frame (frame, bin, count) triples and the bin offset (W + 1,) of each wall."""
-    from featmap.io.atomic import atomic_path
-
     cat = (lambda i: np.concatenate([p[i] for p in per_frame]) if per_frame else np.zeros(0, np.int32))
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
@@ -140,3 +144,101 @@ def read_objects_local(truth_dir: str | Path) -> list[dict]:
     if not isinstance(data, dict) or not isinstance(data.get("objects"), list):
         raise InputFileError(path, "expected {'objects': [...]}")
     return data["objects"]
+
+
+# --- per-scan observations ------------------------------------------------------------------------
+
+MIN_HITS = 50
+MIN_OBSERVED_M = 2.0
+GAP_FACTOR = 2.5
+MIN_GAP_M = 0.5
+OBSERVATIONS_FILE = "observations.npz"
+
+
+@dataclass(frozen=True)
+class ScanObservations:
+    """Observations of walls by scans (O observations, I intervals in total).
+
+    Attributes:
+        frame: (O,) frame (scan) index in the drive.
+        wall: (O,) wall index (row of ``truth/walls.csv``, the order of ``building_edges``).
+        n_hits: (O,) rays that hit the wall in that scan.
+        s_min, s_max: (O,) extreme hit positions along the wall (metres).
+        observed_m: (O,) total length of the observed intervals (metres).
+        interval_offset: (O + 1,) observation o owns intervals ``interval_offset[o]:interval_offset[o + 1]``.
+        interval_start, interval_end: (I,) observed stretches along the wall (metres).
+    """
+
+    frame: np.ndarray
+    wall: np.ndarray
+    n_hits: np.ndarray
+    s_min: np.ndarray
+    s_max: np.ndarray
+    observed_m: np.ndarray
+    interval_offset: np.ndarray
+    interval_start: np.ndarray
+    interval_end: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.frame)
+
+    @property
+    def extent_m(self) -> np.ndarray:
+        """(O,) span between the extreme hits along the wall (metres), gaps included."""
+        return self.s_max - self.s_min
+
+    def intervals(self, o: int) -> list[tuple[float, float]]:
+        """Observed (start, end) stretches of observation ``o`` along its wall (metres)."""
+        a, b = self.interval_offset[o], self.interval_offset[o + 1]
+        return [(float(s), float(e)) for s, e in zip(self.interval_start[a:b], self.interval_end[a:b])]
+
+    def counting(self, min_hits: int = MIN_HITS, min_observed_m: float = MIN_OBSERVED_M) -> np.ndarray:
+        """(O,) True for observations with at least ``min_hits`` hits and ``min_observed_m`` observed."""
+        return (self.n_hits >= min_hits) & (self.observed_m >= min_observed_m)
+
+    def subset(self, mask: np.ndarray) -> "ScanObservations":
+        """The observations where ``mask`` (O,) is True (e.g. ``np.isin(obs.frame, frames)``)."""
+        idx = np.flatnonzero(np.asarray(mask, bool))
+        counts = np.diff(self.interval_offset)[idx]
+        starts = self.interval_offset[idx]
+        take = (np.repeat(starts - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
+                + np.arange(counts.sum())).astype(np.int64)
+        return ScanObservations(self.frame[idx], self.wall[idx], self.n_hits[idx], self.s_min[idx], self.s_max[idx],
+                                self.observed_m[idx], np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+                                self.interval_start[take], self.interval_end[take])
+
+    @staticmethod
+    def empty() -> "ScanObservations":
+        i, f = np.zeros(0, np.int64), np.zeros(0)
+        return ScanObservations(i, i, i, f, f, f, np.zeros(1, np.int64), f, f)
+
+
+def write_observations(path: str | Path, obs: ScanObservations, n_walls: int) -> None:
+    """Write ``obs`` as a compressed ``.npz`` (with the thresholds used, for the reader)."""
+    with atomic_path(Path(path)) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, frame=obs.frame.astype(np.int32), wall=obs.wall.astype(np.int32),
+                                n_hits=obs.n_hits.astype(np.int32), s_min=obs.s_min, s_max=obs.s_max,
+                                observed_m=obs.observed_m, interval_offset=obs.interval_offset,
+                                interval_start=obs.interval_start, interval_end=obs.interval_end,
+                                n_walls=np.int64(n_walls), gap_factor=np.float64(GAP_FACTOR),
+                                min_gap_m=np.float64(MIN_GAP_M))
+
+
+def read_observations(truth_dir: str | Path, frames: list[int] | np.ndarray | None = None) -> ScanObservations:
+    """Read ``truth_dir/observations.npz``; with ``frames``, only those scans' observations."""
+    path = Path(truth_dir) / OBSERVATIONS_FILE
+    if not path.exists():
+        raise InputFileError(path, "not found: simulate the drive with per-scan truth "
+                                   "(simulate_drive(..., scan_observations=True))")
+    try:
+        with np.load(path) as data:
+            obs = ScanObservations(data["frame"].astype(np.int64), data["wall"].astype(np.int64),
+                                   data["n_hits"].astype(np.int64), data["s_min"], data["s_max"], data["observed_m"],
+                                   data["interval_offset"].astype(np.int64), data["interval_start"],
+                                   data["interval_end"])
+    except (OSError, ValueError, KeyError) as exc:
+        raise InputFileError(path, f"not a per-scan observation file ({type(exc).__name__}: {exc})") from None
+    if frames is not None:
+        obs = obs.subset(np.isin(obs.frame, np.asarray(frames)))
+    return obs

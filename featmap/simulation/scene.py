@@ -1,8 +1,14 @@
 """Triangle meshes of a world in an Open3D ``RaycastingScene`` (CPU).
 
-Flat ground at z = 0; buildings as extruded footprints (one quad per wall, so every hit on a wall
-maps back to its footprint edge), with roofs; fences as thin boxes; cars as boxes; poles as
-cylinders; trees as a trunk cylinder and a spherical crown.
+The ground (flat z = 0, or a sloped plane with raised sidewalks and curb faces, see
+:mod:`featmap.simulation.ground`); buildings as extruded footprints (one quad per wall, so every hit
+on a wall maps back to its footprint edge), with roofs; fences as thin boxes; cars as boxes; poles as
+cylinders; trees as a trunk cylinder and a spherical crown; hedges as rows of jittered boxes.
+
+On sloped ground every object stands on the ground beneath it: a building's walls reach from
+below its lowest footprint corner to ``height`` above its highest one; fences and hedges are cut
+into pieces of at most :data:`SLOPE_PIECE_M` that each follow the ground, sunk
+:data:`SLOPE_SINK_M` into it so that no gap opens underneath.
 """
 
 from __future__ import annotations
@@ -11,9 +17,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from featmap.simulation.ground import GroundSurface
 from featmap.simulation.worlds import World, _open_ring, building_edges
 
-REFLECTANCE = {"ground": 0.12, "building": 0.32, "roof": 0.3, "fence": 0.4, "car": 0.65, "pole": 0.45, "tree": 0.2}
+REFLECTANCE = {"ground": 0.12, "building": 0.32, "roof": 0.3, "fence": 0.4, "car": 0.65, "pole": 0.45, "tree": 0.2,
+               "hedge": 0.18}
+SLOPE_PIECE_M = 1.0
+SLOPE_SINK_M = 0.15
+HEDGE_BOX_M = 0.7           # longest box of a hedge (its segments are cut into equal boxes up to this long)
 
 
 @dataclass
@@ -33,27 +44,45 @@ class SceneIndex:
     edges: list[dict]
 
 
-def _wall_mesh(edges: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def building_levels(world: World, surface: GroundSurface | None = None) -> list[tuple[float, float]]:
+    """(base z, roof z) of every building (world frame): (0, height) on flat ground.
+
+    On sloped ground the walls start 0.3 m below the lowest ground point of the footprint's
+    corners and the roof is ``height`` above the highest.
+    """
+    surface = surface or GroundSurface(world.ground)
+    if surface.is_flat:
+        return [(0.0, b.height) for b in world.buildings]
+    out = []
+    for b in world.buildings:
+        z = surface.height(np.asarray(_open_ring(b.footprint), float))
+        out.append((float(z.min()) - 0.3, float(z.max()) + b.height))
+    return out
+
+
+def _wall_mesh(edges: list[dict], levels: list[tuple[float, float]] | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     verts, tris, owner = [], [], []
     for k, e in enumerate(edges):
-        (px, py), (qx, qy), h = e["p"], e["q"], e["height"]
+        (px, py), (qx, qy) = e["p"], e["q"]
+        z0, h = (0.0, e["height"]) if levels is None else levels[e["building_index"]]
         base = len(verts)
-        verts += [(px, py, 0.0), (qx, qy, 0.0), (qx, qy, h), (px, py, h)]
+        verts += [(px, py, z0), (qx, qy, z0), (qx, qy, h), (px, py, h)]
         tris += [(base, base + 1, base + 2), (base, base + 2, base + 3)]
         owner += [k, k]
     return np.asarray(verts, float).reshape(-1, 3), np.asarray(tris, np.int64).reshape(-1, 3), np.asarray(owner, np.int64)
 
 
-def _roof_mesh(world: World) -> tuple[np.ndarray, np.ndarray]:
+def _roof_mesh(world: World, roof_z: list[float]) -> tuple[np.ndarray, np.ndarray]:
     import shapely
     from shapely.geometry import Polygon
 
     verts, tris = [], []
-    for b in world.buildings:
+    for b, z in zip(world.buildings, roof_z):
         poly = Polygon(_open_ring(b.footprint), [_open_ring(h) for h in b.holes])
         for tri in shapely.constrained_delaunay_triangles(poly).geoms:
             base = len(verts)
-            verts += [(x, y, b.height) for x, y in list(tri.exterior.coords)[:3]]
+            verts += [(x, y, z) for x, y in list(tri.exterior.coords)[:3]]
             tris.append((base, base + 1, base + 2))
     return np.asarray(verts, float).reshape(-1, 3), np.asarray(tris, np.int64).reshape(-1, 3)
 
@@ -71,39 +100,88 @@ def _merge(meshes) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(verts), np.concatenate(tris)
 
 
-def _clutter_meshes(world: World) -> dict[str, list]:
+def _box_along(a: np.ndarray, b: np.ndarray, width: float, height: float, z0: float, lateral: float = 0.0):
+    """A box from ``a`` to ``b`` (2,), ``width`` across (centred ``lateral`` to the left), from ``z0`` up ``height``."""
     import open3d as o3d
 
-    out: dict[str, list] = {"fence": [], "car": [], "pole": [], "tree": []}
+    length = float(np.linalg.norm(b - a))
+    box = o3d.geometry.TriangleMesh.create_box(length, width, height)
+    box.translate((0.0, -width / 2 + lateral, 0.0))
+    ang = np.arctan2(*(b - a)[::-1])
+    box.rotate(o3d.geometry.get_rotation_matrix_from_xyz((0, 0, ang)), center=(0, 0, 0))
+    box.translate((a[0], a[1], z0))
+    return box
+
+
+def _pieces(a: np.ndarray, b: np.ndarray, piece_m: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    n = max(1, int(np.ceil(np.linalg.norm(b - a) / piece_m)))
+    t = np.linspace(0.0, 1.0, n + 1)
+    return [(a + (b - a) * t0, a + (b - a) * t1) for t0, t1 in zip(t[:-1], t[1:])]
+
+
+def _hedge_boxes(hedge, surface: GroundSurface) -> list:
+    """A hedge as boxes of ~HEDGE_BOX_M, each with jittered height, width and lateral position."""
+    rng = np.random.default_rng(hedge.seed)
+    line = np.asarray(hedge.line, float)
+    out = []
+    for a, b in zip(line[:-1], line[1:]):
+        if np.linalg.norm(b - a) < 1e-6:
+            continue
+        for p, q in _pieces(a, b, HEDGE_BOX_M):
+            jitter = rng.normal(0.0, hedge.irregularity, 3)
+            height = max(0.2, hedge.height + jitter[0])
+            width = max(0.2, hedge.width + jitter[1])
+            mid = (p + q) / 2
+            z0 = float(surface.height(mid)[0]) - SLOPE_SINK_M
+            out.append(_box_along(p, q, width, height + SLOPE_SINK_M, z0, lateral=0.5 * jitter[2]))
+    return out
+
+
+def _clutter_meshes(world: World, surface: GroundSurface | None = None) -> dict[str, list]:
+    """Meshes of every non-building object by kind; on flat ground everything stands on z = 0."""
+    import open3d as o3d
+
+    surface = surface or GroundSurface(world.ground)
+    flat = surface.is_flat
+
+    def ground_z(xy) -> float:
+        return 0.0 if flat else float(surface.height(np.asarray(xy, float))[0])
+
+    out: dict[str, list] = {"fence": [], "car": [], "pole": [], "tree": [], "hedge": []}
     for f in world.of_kind("fence"):
         line = np.asarray(f.line, float)
         for a, b in zip(line[:-1], line[1:]):
             length = float(np.linalg.norm(b - a))
             if length < 1e-6:
                 continue
-            box = o3d.geometry.TriangleMesh.create_box(length, f.thickness, f.height)
-            box.translate((0.0, -f.thickness / 2, 0.0))
-            ang = np.arctan2(*(b - a)[::-1])
-            box.rotate(o3d.geometry.get_rotation_matrix_from_xyz((0, 0, ang)), center=(0, 0, 0))
-            box.translate((a[0], a[1], 0.0))
-            out["fence"].append(box)
+            if flat:
+                out["fence"].append(_box_along(a, b, f.thickness, f.height, 0.0))
+                continue
+            for p, q in _pieces(a, b, SLOPE_PIECE_M):
+                z0 = ground_z((p + q) / 2) - SLOPE_SINK_M
+                out["fence"].append(_box_along(p, q, f.thickness, f.height + SLOPE_SINK_M, z0))
     for c in world.of_kind("car"):
         length, width, height = c.size
-        box = o3d.geometry.TriangleMesh.create_box(length, width, height)
+        z0 = 0.0 if flat else ground_z(c.position) - SLOPE_SINK_M
+        box = o3d.geometry.TriangleMesh.create_box(length, width, height if flat else height + SLOPE_SINK_M)
         box.translate((-length / 2, -width / 2, 0.0))
         box.rotate(o3d.geometry.get_rotation_matrix_from_xyz((0, 0, np.deg2rad(c.heading_deg))), center=(0, 0, 0))
-        box.translate((c.position[0], c.position[1], 0.0))
+        box.translate((c.position[0], c.position[1], z0))
         out["car"].append(box)
     for p in world.of_kind("pole"):
+        z0 = ground_z(p.position)
         cyl = o3d.geometry.TriangleMesh.create_cylinder(p.radius, p.height, resolution=12)
-        cyl.translate((p.position[0], p.position[1], p.height / 2))
+        cyl.translate((p.position[0], p.position[1], z0 + p.height / 2))
         out["pole"].append(cyl)
     for t in world.of_kind("tree"):
+        z0 = ground_z(t.position)
         trunk = o3d.geometry.TriangleMesh.create_cylinder(t.trunk_radius, t.trunk_height, resolution=10)
-        trunk.translate((t.position[0], t.position[1], t.trunk_height / 2))
+        trunk.translate((t.position[0], t.position[1], z0 + t.trunk_height / 2))
         crown = o3d.geometry.TriangleMesh.create_sphere(t.crown_radius, resolution=10)
-        crown.translate((t.position[0], t.position[1], t.trunk_height + 0.8 * t.crown_radius))
+        crown.translate((t.position[0], t.position[1], z0 + t.trunk_height + 0.8 * t.crown_radius))
         out["tree"] += [trunk, crown]
+    for h in world.of_kind("hedge"):
+        out["hedge"] += _hedge_boxes(h, surface)
     return out
 
 
@@ -123,18 +201,23 @@ def build_scene(world: World, ground_margin_m: float = 200.0):
     pts += [np.asarray(b.footprint, float) for b in world.buildings]
     allpts = np.concatenate(pts)
     lo, hi = allpts.min(0) - ground_margin_m, allpts.max(0) + ground_margin_m
-    add("ground", np.array([[lo[0], lo[1], 0], [hi[0], lo[1], 0], [hi[0], hi[1], 0], [lo[0], hi[1], 0]], float),
-        np.array([[0, 1, 2], [0, 2, 3]]))
+    surface = GroundSurface(world.ground)
+    if surface.is_flat:
+        add("ground", np.array([[lo[0], lo[1], 0], [hi[0], lo[1], 0], [hi[0], hi[1], 0], [lo[0], hi[1], 0]], float),
+            np.array([[0, 1, 2], [0, 2, 3]]))
+    else:
+        add("ground", *surface.mesh(lo, hi))
     edges = building_edges(world)
     wall_gid = -1
     owner = np.zeros(0, np.int64)
     if edges:
-        verts, tris, owner = _wall_mesh(edges)
+        levels = building_levels(world, surface)
+        verts, tris, owner = _wall_mesh(edges, levels)
         wall_gid = add("building", verts, tris)
-        roof_v, roof_t = _roof_mesh(world)
+        roof_v, roof_t = _roof_mesh(world, [top for _, top in levels])
         if len(roof_t):
             add("roof", roof_v, roof_t)
-    for kind, meshes in _clutter_meshes(world).items():
+    for kind, meshes in _clutter_meshes(world, surface).items():
         verts, tris = _merge(meshes)
         if len(tris):
             add(kind, verts, tris)

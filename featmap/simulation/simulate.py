@@ -2,7 +2,9 @@
 
 The vehicle's IMU follows the route at the sensor rate; the velodyne sits on it through a
 KITTI-like ``T_velo_imu`` (velodyne origin ``sensor.height_m`` above flat ground), so
-``T_w_velo = T_w_imu @ inv(T_velo_imu)`` exactly as pykitti users compute it. Rays are cast from the
+``T_w_velo = T_w_imu @ inv(T_velo_imu)`` exactly as pykitti users compute it. On a sloped world
+the vehicle stands on the street plane: its height follows the slope and it pitches and rolls
+with it, and the OXTS packets carry that altitude, pitch and roll, so pykitti's poses stay exact. Rays are cast from the
 true velodyne pose (no motion distortion: every scan is an instantaneous sweep); the OXTS packets
 carry the true pose, or a perturbed one with ``pose_noise`` (a smooth Gauss-Markov error with a 2 s
 correlation time, the way GPS/INS errors drift rather than jump).
@@ -13,7 +15,13 @@ Ground truth written to ``<drive>/truth/``:
   observed of it (returns within ``truth_range_m``, observed intervals along the wall);
 - ``objects_local.json`` / ``objects.geojson``: every object with its kind (local frame / WGS84);
 - ``footprints.geojson``: building footprints (WGS84), usable with ``featmap evaluate --truth``;
-- ``trajectory.csv`` and ``simulation.json`` (parameters, seed, geo origin).
+- ``trajectory.csv`` and ``simulation.json`` (parameters, seed, geo origin);
+- ``observations.npz`` (with ``scan_observations=True``): per (scan, wall) the rays that hit the
+  wall and where along it, with no range cap (:mod:`featmap.simulation.observations`).
+
+Flat worlds simulated with a built-in sensor preset write exactly the files they always did;
+sloped worlds add ``z, roll, pitch`` to ``trajectory.csv`` and the ground to ``simulation.json``,
+and a sensor that differs from its preset (e.g. another azimuth step) is described there too.
 """
 
 from __future__ import annotations
@@ -35,9 +43,11 @@ from featmap.geo import GeoFrame, latlon_to_mercator, mercator_to_latlon
 from featmap.io.atomic import atomic_write_text
 from featmap.io.kitti_raw import (drive_paths, format_oxts_packet, write_calib_file, write_timestamps,
                                   write_velo_bin)
-from featmap.io.sim_truth import COVERAGE_BIN_M, observed_intervals, write_coverage
+from featmap.io.sim_truth import COVERAGE_BIN_M, OBSERVATIONS_FILE, observed_intervals, write_coverage, write_observations
+from featmap.simulation.ground import GroundSurface
+from featmap.simulation.observations import concatenate, observe_scan
 from featmap.simulation.scene import REFLECTANCE, build_scene, cast
-from featmap.simulation.sensors import SensorPreset
+from featmap.simulation.sensors import SENSORS, SensorPreset
 from featmap.simulation.trajectory import sample_poses
 from featmap.simulation.worlds import World, _open_ring
 
@@ -52,6 +62,24 @@ def rotation_xyz(roll: float, pitch: float, yaw: float) -> np.ndarray:
     ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
     rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
     return rz @ ry @ rx
+
+
+def vehicle_attitude(grade: tuple[float, float], yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Roll and pitch (radians, pykitti's convention) of a vehicle standing on the plane of ``grade``.
+
+    The vehicle's x axis points along ``yaw`` (radians, 0 = east) up or down the slope, its z axis
+    along the plane's normal; ``rotation_xyz(roll, pitch, yaw)`` is then its exact attitude.
+    Returns (roll (F,), pitch (F,)) for ``yaw`` (F,).
+    """
+    gx, gy = grade
+    yaw = np.asarray(yaw, float)
+    forward = np.stack([np.cos(yaw), np.sin(yaw), gx * np.cos(yaw) + gy * np.sin(yaw)], axis=1)
+    forward /= np.linalg.norm(forward, axis=1, keepdims=True)
+    up = np.array([-gx, -gy, 1.0]) / np.sqrt(gx * gx + gy * gy + 1.0)
+    left = np.cross(up, forward)
+    pitch = -np.arcsin(np.clip(forward[:, 2], -1.0, 1.0))
+    roll = np.arctan2(left[:, 2], np.full(len(yaw), up[2]))
+    return roll, pitch
 
 
 def synthetic_T_velo_imu() -> np.ndarray:
@@ -114,7 +142,8 @@ class SimulatedDrive:
 def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_frames: int | None = None,
                    noise_m: float = 0.02, dropout: float = 0.0, pose_noise: tuple[float, float] = (0.0, 0.0),
                    seed: int = 0, drive_id: str = "0001", truth_range_m: float = 50.0,
-                   progress: Callable[[Iterable, int], Iterable] | None = None) -> SimulatedDrive:
+                   progress: Callable[[Iterable, int], Iterable] | None = None,
+                   scan_observations: bool = False) -> SimulatedDrive:
     """Simulate ``world`` and write the drive under ``out_root`` (KITTI raw layout).
 
     The drive is written into a hidden temporary folder and moved into place at the end, so an
@@ -131,6 +160,7 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
         seed: seeds every random draw; the same seed writes byte-identical files.
         truth_range_m: wall returns closer than this count as observations in the ground truth.
         progress: wraps the frame loop, e.g. ``lambda it, n: rich.progress.track(it, total=n)``.
+        scan_observations: also write ``truth/observations.npz``, what each scan saw of each wall.
     """
     if not (0.0 <= dropout < 1.0):
         raise FeatmapError(f"--dropout {dropout}: must be in [0, 1)")
@@ -154,7 +184,15 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
     T_velo_imu = synthetic_T_velo_imu()
     T_imu_velo = np.linalg.inv(T_velo_imu)
     imu_z = sensor.height_m - T_imu_velo[2, 3]           # puts the velodyne origin at sensor.height_m
-    p0 = np.array([xy[0, 0], xy[0, 1], imu_z])
+    surface = GroundSurface(world.ground)
+    flat = surface.is_flat
+    if flat:
+        z_imu = np.full(n, imu_z)
+        roll = pitch = np.zeros(n)
+    else:                                                # the vehicle stands on the street plane
+        z_imu = surface.plane_height(xy) + imu_z
+        roll, pitch = vehicle_attitude(world.ground.grade, yaw)
+    p0 = np.array([xy[0, 0], xy[0, 1], z_imu[0]])
 
     # Geographic anchor: the first OXTS packet is at the world's geo origin shifted to the first pose.
     s0 = np.cos(np.deg2rad(world.geo_origin.lat))
@@ -171,6 +209,8 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
     edge_p = np.array([e["p"] for e in edges]).reshape(-1, 2)
     edge_u = np.array([(e["q"] - e["p"]) / np.linalg.norm(e["q"] - e["p"]) for e in edges]).reshape(-1, 2)
     kind_of_gid = index.kinds
+    azimuth_step_rad = np.deg2rad(sensor.azimuth_step_deg)
+    scan_obs = []
 
     err_x = gauss_markov(rng, n, pose_noise[0], dt_s)
     err_y = gauss_markov(rng, n, pose_noise[0], dt_s)
@@ -187,11 +227,12 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
     speed = world.route.speed_mps
     for k in frames:
         T_w_imu = np.eye(4)
-        T_w_imu[:3, :3] = rotation_xyz(0.0, 0.0, yaw[k])
-        T_w_imu[:3, 3] = (xy[k, 0], xy[k, 1], imu_z)
+        T_w_imu[:3, :3] = rotation_xyz(0.0, 0.0, yaw[k]) if flat else rotation_xyz(roll[k], pitch[k], yaw[k])
+        T_w_imu[:3, 3] = (xy[k, 0], xy[k, 1], z_imu[k])
         T_w_velo = T_w_imu @ T_imu_velo
         R, origin = T_w_velo[:3, :3], T_w_velo[:3, 3]
-        t_hit, gid, prim = cast(scene, origin, directions @ R.T)
+        directions_w = directions @ R.T
+        t_hit, gid, prim = cast(scene, origin, directions_w)
         keep = np.isfinite(t_hit) & (t_hit <= sensor.max_range_m) & (t_hit >= sensor.min_range_m)
         if dropout > 0:
             keep &= rng.random(len(t_hit)) >= dropout
@@ -208,19 +249,23 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
         # Ground truth: which stretches of which walls this scan saw (true geometry, no noise).
         wall = keep & (gid == index.wall_geometry_id) & (t_hit <= truth_range_m)
         if wall.any():
-            hit_w = origin + (directions[wall] @ R.T) * t_hit[wall, None]
+            hit_w = origin + directions_w[wall] * t_hit[wall, None]
             e = index.wall_edge_of_triangle[prim[wall]]
             s = np.einsum("ij,ij->i", hit_w[:, :2] - edge_p[e], edge_u[e])
             b = np.clip((s / COVERAGE_BIN_M).astype(np.int64), 0, n_bins[e] - 1)
             bins, counts = np.unique(bin_offset[e] + b, return_counts=True)
             coverage[bins] += counts
             per_frame.append((np.full(len(bins), k, np.int32), bins.astype(np.int32), counts.astype(np.int32)))
+        if scan_observations:
+            scan_obs.append(_observe(k, keep & (gid == index.wall_geometry_id), origin, directions_w, t_hit, prim,
+                                     index.wall_edge_of_triangle, edge_p, edge_u, azimuth_step_rad))
 
         # OXTS: the (possibly perturbed) IMU pose of this frame.
         noisy_x, noisy_y, noisy_yaw = xy[k, 0] + err_x[k], xy[k, 1] + err_y[k], yaw[k] + err_yaw[k]
         lat, lon = geo.to_wgs84(noisy_x - p0[0], noisy_y - p0[1])
         wrapped_yaw = (noisy_yaw + np.pi) % (2 * np.pi) - np.pi
-        packet = {"lat": float(lat), "lon": float(lon), "alt": geo.alt0_m, "roll": 0.0, "pitch": 0.0,
+        alt = geo.alt0_m if flat else geo.alt0_m + float(z_imu[k] - z_imu[0])
+        packet = {"lat": float(lat), "lon": float(lon), "alt": alt, "roll": float(roll[k]), "pitch": float(pitch[k]),
                   "yaw": wrapped_yaw, "vn": speed * np.sin(yaw[k]), "ve": speed * np.cos(yaw[k]), "vf": speed,
                   "az": 9.81, "ay": speed * yaw_rate[k], "al": speed * yaw_rate[k], "au": 9.81,
                   "wz": yaw_rate[k], "wu": yaw_rate[k], "pos_accuracy": max(0.02, pose_noise[0]),
@@ -234,19 +279,47 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
     (drive_tmp / "oxts" / "dataformat.txt").write_text(_OXTS_DATAFORMAT)
     write_calibration(calib_dir, T_velo_imu)
     write_coverage(drive_tmp / "truth" / "coverage.npz", per_frame, bin_offset)
+    if scan_observations:
+        write_observations(drive_tmp / "truth" / OBSERVATIONS_FILE, concatenate(scan_obs), len(edges))
+    params = {
+        "world": world.name, "world_source": world.source, "sensor": sensor.name,
+        "noise_m": noise_m, "dropout": dropout, "pose_noise": list(pose_noise), "seed": seed,
+        "frames": n, "truth_range_m": truth_range_m, "speed_mps": speed,
+        "geo_origin": geo.to_dict(), "world_offset_xy": [float(p0[0]), float(p0[1])],
+    }
+    if SENSORS.get(sensor.name) != sensor:               # a customised preset: say what was simulated
+        params["sensor_spec"] = {"n_beams": sensor.n_beams, "elevations_deg": list(sensor.elevations_deg),
+                                 "azimuth_step_deg": sensor.azimuth_step_deg, "max_range_m": sensor.max_range_m,
+                                 "min_range_m": sensor.min_range_m, "height_m": sensor.height_m,
+                                 "rate_hz": sensor.rate_hz}
+    if not flat:
+        params["ground"] = world.ground.model_dump(mode="json")
+        params["world_offset_z"] = float(p0[2])
+    trajectory_z = None if flat else (z_imu - p0[2], roll, pitch)
     _write_truth(drive_tmp / "truth", world, edges, coverage, bin_offset, n_bins, p0, geo, xy, yaw,
-                 err_x, err_y, err_yaw, {
-                     "world": world.name, "world_source": world.source, "sensor": sensor.name,
-                     "noise_m": noise_m, "dropout": dropout, "pose_noise": list(pose_noise), "seed": seed,
-                     "frames": n, "truth_range_m": truth_range_m, "speed_mps": speed,
-                     "geo_origin": geo.to_dict(), "world_offset_xy": [float(p0[0]), float(p0[1])],
-                 })
+                 err_x, err_y, err_yaw, params, trajectory_z)
     os.replace(drive_tmp, final_dir)
     return SimulatedDrive(out_root, SIM_DATE, drive_id, n)
 
 
+def _observe(frame: int, wall_rays: np.ndarray, origin: np.ndarray, directions_w: np.ndarray, t_hit: np.ndarray,
+             prim: np.ndarray, edge_of_triangle: np.ndarray, edge_p: np.ndarray, edge_u: np.ndarray,
+             azimuth_step_rad: float):
+    """Observations of one scan: where its (true, noise-free) wall hits land along each wall."""
+    d = directions_w[wall_rays]
+    t = t_hit[wall_rays]
+    e = edge_of_triangle[prim[wall_rays]]
+    hit_xy = origin[:2] + d[:, :2] * t[:, None]
+    s = np.einsum("ij,ij->i", hit_xy - edge_p[e], edge_u[e])
+    horizontal = np.hypot(d[:, 0], d[:, 1])
+    normal = np.column_stack([-edge_u[e, 1], edge_u[e, 0]])
+    cos_incidence = np.abs(np.einsum("ij,ij->i", d[:, :2], normal)) / np.maximum(horizontal, 1e-9)
+    spacing = t * horizontal * azimuth_step_rad / np.maximum(cos_incidence, 0.1)
+    return observe_scan(frame, e, s, spacing)
+
+
 def _write_truth(folder: Path, world: World, edges, coverage, bin_offset, n_bins, p0, geo: GeoFrame,
-                 xy, yaw, err_x, err_y, err_yaw, params: dict) -> None:
+                 xy, yaw, err_x, err_y, err_yaw, params: dict, trajectory_z=None) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     off = p0[:2]
     buf = io.StringIO()
@@ -272,7 +345,7 @@ def _write_truth(folder: Path, world: World, edges, coverage, bin_offset, n_bins
             local = [(r - off).round(4).tolist() for r in rings]
             geom_local = {"type": "Polygon", "coordinates": local}
             extra = {"height": obj.height, "vertex_labels": obj.vertex_labels}
-        elif obj.kind == "fence":
+        elif obj.kind in ("fence", "hedge"):
             geom_local = {"type": "LineString", "coordinates": (np.asarray(obj.line) - off).round(4).tolist()}
             extra = {"height": obj.height}
         elif obj.kind == "car":
@@ -296,10 +369,14 @@ def _write_truth(folder: Path, world: World, edges, coverage, bin_offset, n_bins
 
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["frame", "x", "y", "yaw", "oxts_x", "oxts_y", "oxts_yaw"])
+    header = ["frame", "x", "y", "yaw", "oxts_x", "oxts_y", "oxts_yaw"]
+    w.writerow(header if trajectory_z is None else header + ["z", "roll", "pitch"])
     for k in range(len(xy)):
-        w.writerow([k, f"{xy[k, 0] - off[0]:.4f}", f"{xy[k, 1] - off[1]:.4f}", f"{yaw[k]:.6f}",
-                    f"{xy[k, 0] + err_x[k] - off[0]:.4f}", f"{xy[k, 1] + err_y[k] - off[1]:.4f}", f"{yaw[k] + err_yaw[k]:.6f}"])
+        row = [k, f"{xy[k, 0] - off[0]:.4f}", f"{xy[k, 1] - off[1]:.4f}", f"{yaw[k]:.6f}",
+               f"{xy[k, 0] + err_x[k] - off[0]:.4f}", f"{xy[k, 1] + err_y[k] - off[1]:.4f}", f"{yaw[k] + err_yaw[k]:.6f}"]
+        if trajectory_z is not None:
+            row += [f"{trajectory_z[0][k]:.4f}", f"{trajectory_z[1][k]:.6f}", f"{trajectory_z[2][k]:.6f}"]
+        w.writerow(row)
     atomic_write_text(folder / "trajectory.csv", buf.getvalue())
     atomic_write_text(folder / "simulation.json", json.dumps(params, indent=1, default=str))
 

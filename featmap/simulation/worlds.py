@@ -12,6 +12,15 @@ A world is data, not code. The YAML form (coordinates in metres, x east, y north
       - {id: c1, kind: car, position: [5, -9], heading_deg: 0}        # size: [4.5, 1.8, 1.5]
       - {id: p1, kind: pole, position: [12, -8], height: 6}
       - {id: t1, kind: tree, position: [20, -8]}
+      - {id: h1, kind: hedge, line: [[0, -4], [8, -4]], height: 1.1, width: 0.8}
+    ground: {grade: [0.02, 0.0], curb_height: 0.12,                    # optional; flat z = 0 without it
+             streets: [{line: [[-40, -15], [70, -15]], width: 8}]}
+
+The ground is the plane ``z = grade_x * x + grade_y * y``; with ``streets`` and a ``curb_height``,
+everything outside the streets' carriageways (sidewalks, gardens, building lots) lies
+``curb_height`` higher, with a vertical curb face along every street edge. Buildings and clutter
+stand on the ground beneath them, and the vehicle drives on the street surface (its pose follows
+the slope).
 
 The GeoJSON form (WGS84, e.g. OpenStreetMap building footprints exported as GeoJSON): Polygons are
 buildings (``properties.height`` in metres, else ``building:levels`` x 3 m, else 10 m), a LineString
@@ -27,12 +36,12 @@ from typing import Annotated, Literal, Optional, Union
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
 
 from featmap.errors import WorldError
 
 WORLDS_DIR = Path(__file__).resolve().parents[1] / "resources" / "worlds"
-KINDS = ("building", "fence", "car", "pole", "tree")
+KINDS = ("building", "fence", "car", "pole", "tree", "hedge")
 
 
 class _Obj(BaseModel):
@@ -77,7 +86,18 @@ class Tree(_Obj):
     crown_radius: float = Field(2.0, gt=0)
 
 
-WorldObject = Annotated[Union[Building, Fence, Car, Pole, Tree], Field(discriminator="kind")]
+class Hedge(_Obj):
+    """Low, irregular vegetation along a polyline: a row of boxes of jittered height, width and position."""
+
+    kind: Literal["hedge"]
+    line: list[tuple[float, float]] = Field(min_length=2)
+    height: float = Field(1.2, gt=0)
+    width: float = Field(0.8, gt=0)
+    irregularity: float = Field(0.15, ge=0, description="metres: std of the jitter of each box's height, width and position")
+    seed: int = Field(0, description="seeds the jitter (same seed, same hedge)")
+
+
+WorldObject = Annotated[Union[Building, Fence, Car, Pole, Tree, Hedge], Field(discriminator="kind")]
 _OBJECT = TypeAdapter(WorldObject)
 
 
@@ -86,6 +106,35 @@ class Route(BaseModel):
     waypoints: list[tuple[float, float]] = Field(min_length=2)
     speed_mps: float = Field(8.0, gt=0)
     turn_radius_m: float = Field(8.0, ge=0)
+
+
+class Street(BaseModel):
+    """A street's carriageway: a polyline and its width (metres); the ground outside it is the curb's height higher."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    line: list[tuple[float, float]] = Field(min_length=2)
+    width: float = Field(gt=0)
+
+
+class Ground(BaseModel):
+    """The ground surface: a plane with a grade, and raised sidewalks (a curb step) outside the streets."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    grade: tuple[float, float] = Field((0.0, 0.0), description="dz/dx, dz/dy of the ground plane (0.03 = 3 % slope)")
+    curb_height: float = Field(0.0, ge=0, le=0.5, description="metres the ground outside the streets lies above them")
+    streets: list[Street] = []
+
+    @field_validator("grade")
+    @classmethod
+    def _moderate_grade(cls, grade: tuple[float, float]) -> tuple[float, float]:
+        if max(abs(grade[0]), abs(grade[1])) > 0.2:
+            raise ValueError("a grade above 0.2 (20 %) is not a street")
+        return grade
+
+    @property
+    def is_flat(self) -> bool:
+        """True for the flat z = 0 plane every world had before grades and curbs existed."""
+        return self.grade == (0.0, 0.0) and (self.curb_height == 0.0 or not self.streets)
 
 
 class GeoOrigin(BaseModel):
@@ -103,6 +152,7 @@ class World(BaseModel):
     geo_origin: GeoOrigin = GeoOrigin()
     route: Route
     objects: list[WorldObject] = []
+    ground: Ground = Ground()
     source: Optional[str] = None
 
     def of_kind(self, kind: str) -> list:
@@ -273,7 +323,7 @@ def load_world(name_or_file: str | Path) -> World:
 
 
 def building_edges(world: World) -> list[dict]:
-    """Every wall of every building: dicts with building id, edge index, endpoints (2,)+(2,), labels.
+    """Every wall of every building: dicts with building id and index, edge index, endpoints (2,)+(2,), labels.
 
     Rings are walked counter-clockwise for exteriors and clockwise for holes, so the outward normal of
     every wall is on its right-hand side.
@@ -295,6 +345,6 @@ def building_edges(world: World) -> list[dict]:
                     lookup = {tuple(map(float, v)): lab for v, lab in zip(ext_raw, b.vertex_labels)}
                     label_p = lookup.get(tuple(map(float, p)), "")
                     label_q = lookup.get(tuple(map(float, q)), "")
-                edges.append({"building": bid, "ring": r_index, "edge": k, "height": b.height,
+                edges.append({"building": bid, "building_index": b_index, "ring": r_index, "edge": k, "height": b.height,
                               "p": p.astype(float), "q": q.astype(float), "label_p": label_p, "label_q": label_q})
     return edges

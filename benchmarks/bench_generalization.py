@@ -1,0 +1,341 @@
+"""Generalization benchmark: per-scan extraction and fused maps on procedurally generated worlds.
+
+    .venv/bin/python benchmarks/bench_generalization.py [--split tuning|heldout] [--seeds S ...]
+        [--frames a:b:c] [--extractor module:function] [--workers 2] [--set fusion.key=value ...] [--json FILE]
+
+Worlds come from :mod:`featmap.simulation.procedural` (house rows, apartment blocks, courtyards,
+side streets, far walls 50-100 m away, cars, fences, hedges, poles, trees, sloped streets with
+curbs; hdl64, vlp32, vls128 or vlp16 with 0.1-0.4 deg azimuth steps, 1-3 cm range noise and
+dropout). ``--split tuning`` (default) uses ``TUNING_SEEDS``, the worlds to develop and tune on;
+``--split heldout`` uses ``HELDOUT_SEEDS``, which must never be used while tuning: run it only to
+report how final defaults generalise. Each drive is simulated on first use into
+``data/sim/<split>/procedural_<seed>`` with per-scan ground truth (``truth/observations.npz``).
+
+The default covers every frame of every world of the split (8 tuning or 10 held-out worlds of
+120-260 scans at 10 Hz: 1586 and 2198 scans). First use simulates them (10-100 s and 0.1-0.5 GB per
+world; 2 and 3 min per split), and so does any change to the generator or to the simulator's code.
+With the current extractor on 2 busy cores the tuning split then takes about 4 min and the
+held-out split about 7 min, nearly all of it extraction.
+``--frames ::2`` halves the scans (fused maps then see each wall from half as many places).
+
+Per world and overall it prints:
+
+- per-scan **observation recall**: the share of (scan, wall) observations with >= 50 hits and
+  >= 2 m observed (no range cap) for which one segment of that scan has >= 1 m of the observed
+  part lying on it (EVALUATION.md's 0.3 m / 10 deg "lies on"), overall, for observations of
+  50-300 hits and for observations more than 50 m away (their nearest observed point);
+- **per-scan coverage**: observed length lying on the union of the scan's segments, over all counting
+  observations;
+- **segment coverage**: the share of the drive's observed wall length (per wall the union of its
+  counting observations over the selected scans) lying on any per-scan segment: the ceiling for fusion;
+- for each fusion method (default configuration, ``featmap.fusion.fuse``): the metrics of
+  EVALUATION.md against that same truth (precision, recall, redundancy, offset, corner error);
+- extraction speed: scans/s of the whole extraction stage with ``--workers`` processes (reading
+  included), and the median milliseconds of the extraction call per scan.
+
+Extraction goes through the pipeline's own loop (:func:`featmap.pipeline.extract.extract_source`) with
+the configured extractor (``--set extraction.method_3d=NAME`` picks another registered one) and its
+content-keyed cache (``--cache-dir``, default ``data/cache``): a re-run that changes only fusion
+settings does not extract again. ``--no-cache`` extracts every scan (for timing).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import shutil
+import statistics
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from featmap.datasets import KittiRawDataset
+from featmap.errors import FeatmapError
+from featmap.evaluation import load_simulator_truth, truth_metrics
+from featmap.evaluation.observation_metrics import match_observations, truth_from_observations, union_coverage
+from featmap.fusion import fuse
+from featmap.io.sim_truth import read_observations
+from featmap.pipeline import SegmentStore, load_config
+from featmap.pipeline.executor import ProcessExecutor, SerialExecutor
+from featmap.pipeline.extract import extract_source
+from featmap.simulation.procedural import generate, split_seeds
+from featmap.simulation.simulate import SIM_DATE, simulate_drive
+
+DRIVE = f"{SIM_DATE}_drive_0001"
+MAX_WORKERS = 2
+FAR_M = 50.0
+FEW_HITS = (50, 300)
+
+
+# --- drives ------------------------------------------------------------------------------------------
+
+def _fingerprint(seed: int) -> str:
+    """What a cached drive was made from: the world, its settings and the simulator's source."""
+    import featmap.simulation as simulation
+
+    g = generate(seed)
+    sources = sorted(Path(simulation.__file__).parent.glob("*.py"))
+    spec = {"world": g.world.model_dump(mode="json"), "sensor": g.settings.sensor.__dict__,
+            "noise_m": g.settings.noise_m, "dropout": g.settings.dropout, "seed": g.settings.seed,
+            "simulator": hashlib.sha256(b"".join(p.read_bytes() for p in sources)).hexdigest()}
+    return hashlib.sha256(json.dumps(spec, sort_keys=True, default=list).encode()).hexdigest()[:16]
+
+
+def drive_root(sim_root: Path, split: str, seed: int) -> Path:
+    return sim_root / split / f"procedural_{seed}"
+
+
+def is_current(sim_root: Path, split: str, seed: int) -> bool:
+    """True when ``seed``'s drive is cached and was simulated from the world the generator makes now."""
+    root = drive_root(sim_root, split, seed)
+    stamp = root / "generator.json"
+    done = (root / SIM_DATE / f"{DRIVE}_sync" / "truth" / "observations.npz").exists()
+    return done and stamp.exists() and json.loads(stamp.read_text()).get("fingerprint") == _fingerprint(seed)
+
+
+def ensure_drive(sim_root: Path, split: str, seed: int) -> Path:
+    """The KITTI raw root of ``seed``'s drive, simulated (with per-scan truth) if missing or stale."""
+    root = drive_root(sim_root, split, seed)
+    if is_current(sim_root, split, seed):
+        return root
+    if root.exists():
+        shutil.rmtree(root)
+    g = generate(seed)
+    s = g.settings
+    simulate_drive(g.world, root, s.sensor, noise_m=s.noise_m, dropout=s.dropout, seed=s.seed, scan_observations=True)
+    (root / "generator.json").write_text(json.dumps({"seed": seed, "fingerprint": _fingerprint(seed)}))
+    return root
+
+
+def _simulate_task(args) -> tuple[int, float]:
+    sim_root, split, seed = args
+    start = time.perf_counter()
+    ensure_drive(Path(sim_root), split, seed)
+    return seed, time.perf_counter() - start
+
+
+# --- scoring -----------------------------------------------------------------------------------------
+
+@dataclass
+class WorldResult:
+    seed: int
+    label: str
+    scans: int
+    n_obs: int
+    found: int
+    few: tuple[int, int]
+    far: tuple[int, int]
+    covered_m: float
+    observed_m: float
+    segment_coverage: float | None
+    segments: int
+    extract_ms: list
+    points: list
+    methods: dict
+
+
+def score_world(root: Path, frames: list[int], segments: np.ndarray, scan: np.ndarray, config,
+                methods: list[str]) -> dict:
+    """Observation recall, coverage and every method's fused metrics for one world's extracted segments."""
+    ds = KittiRawDataset(root, DRIVE)
+    truth_dir = ds.location / "truth"
+    obs = read_observations(truth_dir, frames)
+    base = load_simulator_truth(truth_dir)
+    wanted = set(frames)
+    poses = {f: T[:2, 3] for f, T in zip(ds.frames, ds.poses()) if f in wanted}
+    counting = obs.counting()
+    obs_c = obs.subset(counting)
+    match = match_observations(base.walls, obs_c, segments, scan, poses)
+    truth = truth_from_observations(base, obs_c, np.ones(len(obs_c), bool))
+    few = (obs_c.n_hits >= FEW_HITS[0]) & (obs_c.n_hits <= FEW_HITS[1])
+    far = match.min_distance_m > FAR_M
+    out = {"n_obs": int(len(obs_c)), "found": int(match.found.sum()),
+           "few": (int(match.found[few].sum()), int(few.sum())), "far": (int(match.found[far].sum()), int(far.sum())),
+           "covered_m": float(match.covered_m.sum()), "observed_m": float(match.sampled_m.sum()),
+           "segment_coverage": union_coverage(segments, truth), "methods": {}}
+    for name in methods:
+        start = time.perf_counter()
+        result = fuse(name, segments, scan, config.fusion)
+        seconds = time.perf_counter() - start
+        metrics = truth_metrics(result.segments, truth)
+        metrics["fusion_seconds"] = seconds
+        out["methods"][name] = metrics
+    return out
+
+
+# --- report ------------------------------------------------------------------------------------------
+
+def _share(a: int, b: int) -> str:
+    return f"{a / b:.3f}" if b else "-"
+
+
+def _num(value, fmt: str) -> str:
+    return "-" if value is None else format(value, fmt)
+
+
+def print_report(results: list[WorldResult], methods: list[str], split: str, wall_seconds: float, workers: int,
+                 console: Console, extracted_now: int) -> None:
+    table = Table(title=f"per-scan extraction against observations ({split} worlds)")
+    for col in ("seed", "sensor, step, noise, dropout", "scans", "obs", "obs recall", "50-300 hits (n)",
+                f">{FAR_M:.0f} m (n)", "per-scan cov.", "segment cov.", "segs/scan", "ms/scan", "points/scan"):
+        table.add_column(col, justify="left" if col in ("seed", "sensor, step, noise, dropout") else "right")
+    for r in results:
+        table.add_row(str(r.seed), r.label, str(r.scans), str(r.n_obs), _share(r.found, r.n_obs),
+                      f"{_share(*r.few)} ({r.few[1]})", f"{_share(*r.far)} ({r.far[1]})",
+                      _num(r.covered_m / r.observed_m if r.observed_m else None, ".3f"),
+                      _num(r.segment_coverage, ".3f"), f"{r.segments / max(r.scans, 1):.1f}",
+                      f"{statistics.median(r.extract_ms):.0f}" if r.extract_ms else "-", f"{statistics.median(r.points) / 1000:.0f}k")
+    tot = lambda f: sum(f(r) for r in results)  # noqa: E731
+    few = (tot(lambda r: r.few[0]), tot(lambda r: r.few[1]))
+    far = (tot(lambda r: r.far[0]), tot(lambda r: r.far[1]))
+    cov = [r.segment_coverage for r in results if r.segment_coverage is not None]
+    all_ms = [m for r in results for m in r.extract_ms]
+    table.add_row("[b]all[/b]", "pooled (segment cov.: mean / min)", str(tot(lambda r: r.scans)),
+                  str(tot(lambda r: r.n_obs)), f"[b]{_share(tot(lambda r: r.found), tot(lambda r: r.n_obs))}[/b]",
+                  f"{_share(*few)} ({few[1]})", f"{_share(*far)} ({far[1]})",
+                  _num(tot(lambda r: r.covered_m) / tot(lambda r: r.observed_m) if tot(lambda r: r.observed_m) else None, ".3f"),
+                  f"{np.mean(cov):.3f} / {np.min(cov):.3f}" if cov else "-",
+                  f"{tot(lambda r: r.segments) / max(tot(lambda r: r.scans), 1):.1f}",
+                  f"{statistics.median(all_ms):.0f}" if all_ms else "-", "")
+    console.print(table)
+    if extracted_now:
+        console.print(f"extraction stage: {extracted_now} scans extracted in {wall_seconds:.1f} s with {workers} "
+                      f"worker(s) = [b]{extracted_now / wall_seconds:.1f} scans/s[/b] (reading included)")
+
+    table = Table(title=f"fused maps, default configuration ({split} worlds; truth = union of counting observations)")
+    for col in ("seed", "method", "features", "walls", "precision", "recall", "coverage - recall", "redundancy",
+                "offset cm", "corner cm", "fusion s"):
+        table.add_column(col, justify="left" if col in ("seed", "method") else "right")
+    for r in results:
+        for name in methods:
+            m = r.methods[name]
+            gap = None if (m["recall"] is None or r.segment_coverage is None) else r.segment_coverage - m["recall"]
+            table.add_row(str(r.seed), name, str(m["count"]), str(m["observable_walls"]),
+                          _num(m["precision"], ".3f"), _num(m["recall"], ".3f"), _num(gap, "+.3f"),
+                          _num(m["redundancy"], ".2f"), _num(m["offset_cm"], ".2f"), _num(m["corner_err_cm"], ".1f"),
+                          f"{m['fusion_seconds']:.2f}")
+    for name in methods:
+        vals = {k: [r.methods[name][k] for r in results if r.methods[name][k] is not None]
+                for k in ("precision", "recall", "redundancy", "offset_cm", "corner_err_cm")}
+        gaps = [r.segment_coverage - r.methods[name]["recall"] for r in results
+                if r.segment_coverage is not None and r.methods[name]["recall"] is not None]
+        mean = lambda k: np.mean(vals[k]) if vals[k] else None  # noqa: E731
+        table.add_row("[b]mean[/b]", name, "", "", _num(mean("precision"), ".3f"), _num(mean("recall"), ".3f"),
+                      _num(np.mean(gaps) if gaps else None, "+.3f"), _num(mean("redundancy"), ".2f"),
+                      _num(mean("offset_cm"), ".2f"), _num(mean("corner_err_cm"), ".1f"), "")
+        worst = lambda k, f: f(vals[k]) if vals[k] else None  # noqa: E731
+        table.add_row("[b]worst world[/b]", name, "", "", _num(worst("precision", min), ".3f"),
+                      _num(worst("recall", min), ".3f"), _num(max(gaps) if gaps else None, "+.3f"),
+                      _num(worst("redundancy", max), ".2f"), _num(worst("offset_cm", max), ".2f"),
+                      _num(worst("corner_err_cm", max), ".1f"), "")
+    console.print(table)
+
+
+# --- main --------------------------------------------------------------------------------------------
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--split", choices=("tuning", "heldout"), default="tuning")
+    parser.add_argument("--seeds", type=int, nargs="+", help="a subset of the split's seeds")
+    parser.add_argument("--frames", default=None, help="start:stop:step selection of every world's frames (default: all)")
+    parser.add_argument("--cache-dir", type=Path, default=Path("data/cache"), help="content-keyed extraction cache")
+    parser.add_argument("--no-cache", action="store_true", help="extract every scan (for timing)")
+    parser.add_argument("--workers", type=int, default=2, help=f"extraction processes (at most {MAX_WORKERS})")
+    parser.add_argument("--methods", default="all", help="fusion methods (all, or a comma-separated list)")
+    parser.add_argument("--set", action="append", default=[], dest="overrides", help="config overrides")
+    parser.add_argument("--sim-root", type=Path, default=Path("data/sim"), help="where drives are cached")
+    parser.add_argument("--json", type=Path, help="also write every number to this JSON file")
+    args = parser.parse_args(argv)
+    console = Console(highlight=False, width=None if os.isatty(1) else 200)
+    try:
+        return _run(args, console)
+    except FeatmapError as exc:
+        console.print(f"error: {exc}")
+        return 2
+
+
+def _run(args, console: Console) -> int:
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    from featmap.fusion.registry import resolve_methods
+
+    allowed = split_seeds(args.split)
+    seeds = list(args.seeds or allowed)
+    stray = [s for s in seeds if s not in allowed]
+    if stray:
+        raise FeatmapError(f"--seeds {stray}: not in the {args.split} split ({', '.join(map(str, allowed))})")
+    workers = max(1, min(MAX_WORKERS, args.workers))
+    config = load_config(None, args.overrides)
+    methods = resolve_methods(args.methods)
+    extractor = config.extraction.method_3d
+    store = SegmentStore(None if args.no_cache else args.cache_dir)
+    console.print(f"{args.split} split: {len(seeds)} world(s) (seeds {', '.join(map(str, seeds))}), frames "
+                  f"{args.frames or 'all'}, extractor {extractor}, {workers} worker(s)")
+    ctx = mp.get_context("spawn")            # Open3D and fork do not mix
+
+    missing = [s for s in seeds if not is_current(args.sim_root, args.split, s)]
+    if missing:
+        console.print(f"simulating {len(missing)} {args.split} world(s) into {args.sim_root / args.split} "
+                      "(first use, or the generator changed them)")
+    start = time.perf_counter()
+    with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+        for seed, seconds in pool.map(_simulate_task, [(str(args.sim_root), args.split, s) for s in seeds]):
+            if seed in missing:
+                console.print(f"  procedural_{seed}: {seconds:.0f} s")
+    if missing:
+        console.print(f"simulated in {time.perf_counter() - start:.0f} s")
+
+    frames_of: dict[int, list[int]] = {}
+    per_seed: dict[int, dict] = {}
+    start = time.perf_counter()
+    extracted_now = 0
+    with (ProcessExecutor(workers) if workers > 1 else SerialExecutor()) as executor:
+        for seed in seeds:
+            ds = KittiRawDataset(drive_root(args.sim_root, args.split, seed), DRIVE, args.frames)
+            extraction = extract_source(ds, config.extraction, store, executor)
+            table = extraction.world_table()
+            frames_of[seed] = extraction.frames
+            extracted_now += extraction.extracted_now
+            per_seed[seed] = {"segments": [table.segments], "scan": [table.scan],
+                              "ms": [1000 * t for t in extraction.scan_seconds],
+                              "points": [len(ds[0].points)]}
+    wall_seconds = time.perf_counter() - start
+    if extracted_now < sum(len(f) for f in frames_of.values()):
+        console.print(f"{sum(len(f) for f in frames_of.values()) - extracted_now} scans came from the cache "
+                      f"({args.cache_dir}); the speed below counts only the {extracted_now} extracted now")
+
+    results = []
+    for seed in seeds:
+        acc = per_seed[seed]
+        segments = np.concatenate(acc["segments"]) if acc["segments"] else np.zeros((0, 4))
+        scan = np.concatenate(acc["scan"]) if acc["scan"] else np.zeros(0, np.int64)
+        root = drive_root(args.sim_root, args.split, seed)
+        scored = score_world(root, frames_of[seed], segments, scan, config, methods)
+        g = generate(seed).settings
+        label = f"{g.sensor.name} {g.sensor.azimuth_step_deg:.2f}° {100 * g.noise_m:.1f}cm {100 * g.dropout:.0f}%"
+        results.append(WorldResult(seed, label, len(frames_of[seed]), scored["n_obs"], scored["found"], scored["few"],
+                                   scored["far"], scored["covered_m"], scored["observed_m"], scored["segment_coverage"],
+                                   len(segments), acc["ms"], acc["points"], scored["methods"]))
+    print_report(results, methods, args.split, wall_seconds, workers, console, extracted_now)
+    if args.json:
+        from featmap.io.atomic import atomic_write_text
+
+        payload = {"split": args.split, "frames": args.frames, "extractor": extractor, "workers": workers,
+                   "extraction_wall_seconds": wall_seconds,
+                   "worlds": [{**{k: v for k, v in r.__dict__.items() if k not in ("extract_ms", "points")},
+                               "median_extract_ms": statistics.median(r.extract_ms) if r.extract_ms else None,
+                               "median_points": statistics.median(r.points)} for r in results]}
+        atomic_write_text(args.json, json.dumps(payload, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
