@@ -53,6 +53,7 @@ class ProposedConfig(_Section):
     gamma: float = Field(0.3, ge=0, le=1, description="criterion 2: min feature-circle overlap S_overlap/S_min")
     eta_m: float = Field(0.5, ge=0, description="criterion 3: max relative distance d_max")
     min_support: int = Field(4, ge=1, description="drop clusters with fewer member segments")
+    min_support_length_m: float | None = Field(None, ge=0, description="also keep smaller clusters whose members cover at least this length of their line (null = the paper's count rule only)")
     fit_weighting: Literal["length", "none"] = Field("length", description="weight of each member's endpoints in the TLS fit")
 
 
@@ -79,12 +80,24 @@ class CornerConfig(_Section):
         "intersection", description="midpoint = the paper's rule; intersection = ours; none = off")
     snap_distance_m: float = Field(1.0, ge=0, description="endpoints of different features closer than this are joined")
     min_angle_deg: float = Field(30.0, ge=0, le=90, description="intersection mode: lines must meet at least this steeply")
+    max_extension_m: float | None = Field(None, ge=0, description="intersection mode: join only if each endpoint moves at most this far along its own line to the corner (null = snap_distance_m)")
+
+
+class RefineConfig(_Section):
+    """Shared clean-up after every method, before corners: split and merge clusters so that each feature is one straight wall, cut features at unobserved gaps (featmap.fusion.refine)."""
+
+    max_offset_m: float = Field(0.0, ge=0, description="split clusters whose member endpoints lie farther than this from their line; merge clusters that one line explains within it (0 = off)")
+    merge_angle_deg: float = Field(5.0, ge=0, le=90, description="merge only features within this angle of parallel")
+    merge_gap_m: float = Field(0.5, ge=0, description="merge only features that overlap or leave at most this gap along their line")
+    absorb_dropped: bool = Field(True, description="segments dropped by a support filter join a feature they lie on")
+    split_gap_m: float = Field(0.0, ge=0, description="cut features where no member covers this much of their line, e.g. doorways (0 = off)")
 
 
 class FusionConfig(_Section):
     proposed: ProposedConfig = ProposedConfig()
     meanshift: MeanShiftConfig = MeanShiftConfig()
     density: DensityConfig = DensityConfig()
+    refine: RefineConfig = RefineConfig()
     corners: CornerConfig = CornerConfig()
 
 

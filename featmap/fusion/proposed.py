@@ -8,7 +8,8 @@ Two segments extracted in *different* scans are linked when all three criteria h
 3. relative distance ``d_max = max(d(O_i, seg_j), d(O_j, seg_i)) <= eta`` (eqs. 12-13).
 
 Clusters are the connected groups of linked segments (what the paper's sequential labelling of
-Section 3.2 produces); clusters with fewer than ``min_support`` members are dropped; each remaining
+Section 3.2 produces); clusters with fewer than ``min_support`` members are dropped (unless, with
+``min_support_length_m``, their members cover that much of one line); each remaining
 cluster becomes the total-least-squares line through its members' endpoints, cut at the extreme
 projections of those endpoints.
 
@@ -28,6 +29,7 @@ from scipy.spatial import cKDTree
 
 from featmap.config import ProposedConfig
 from featmap.fusion.base import FusionResult, fit_clusters, relabel_by_first_appearance, validate_input
+from featmap.fusion.gaps import observed_length
 from featmap.geometry import (circle_overlap_area, included_angle, line_coefficients, point_segment_distance,
                               segment_lengths, segment_midpoints)
 
@@ -139,6 +141,12 @@ def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig()) -> 
     i, j = linked_pairs(seg, sc, config)
     groups, sizes = cluster_segments(len(seg), i, j, sc, seg)
     kept = sizes >= config.min_support
+    if config.min_support_length_m is not None and not kept.all():
+        # Few views of a wall still make it a wall when they cover enough of one line.
+        small = ~kept[groups]
+        lines = fit_clusters(seg, groups, len(sizes), segment_lengths(seg))
+        covered = observed_length(lines, seg, np.where(small, groups, -1))
+        kept |= covered >= config.min_support_length_m
     new_id = np.full(len(sizes), -1, dtype=np.int64)
     new_id[kept] = np.arange(kept.sum())
     sub_labels = new_id[groups]

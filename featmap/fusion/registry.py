@@ -1,7 +1,8 @@
 """Registry of fusion methods by name, each with its own typed config section.
 
-``fusion.<name>`` in the config holds a method's parameters; ``fusion.corners`` the corner
-optimisation that runs identically after every method (as the paper does for its Table 2).
+``fusion.<name>`` in the config holds a method's parameters; ``fusion.refine`` the clean-up and
+``fusion.corners`` the corner optimisation that run identically after every method (as the paper
+does for its Table 2).
 A new method is one entry here plus its config model in :mod:`featmap.config`.
 """
 
@@ -19,6 +20,7 @@ from featmap.fusion.corners import optimise_corners
 from featmap.fusion.density import fuse_density
 from featmap.fusion.meanshift import fuse_meanshift
 from featmap.fusion.proposed import fuse_proposed
+from featmap.fusion.refine import refine
 
 
 @dataclass(frozen=True)
@@ -69,9 +71,14 @@ def resolve_methods(spec: str | list[str] | None) -> list[str]:
 
 
 def fuse(name: str, segments, scan, config: FeatmapConfig = FeatmapConfig()) -> FusionResult:
-    """Run method ``name`` with its config section, then the shared corner optimisation."""
+    """Run method ``name`` with its config section, then the shared refinement (``fusion.refine``:
+    consistent clusters, gap splitting) and corner optimisation (``fusion.corners``)."""
     method = get_method(name)
     result = method.fuse(segments, scan, method.config_of(config))
+    rule = config.fusion.proposed if name == "proposed" else None
+    result = refine(result, segments, scan, config.fusion.refine,
+                    min_support=rule.min_support if rule else 1,
+                    min_support_length_m=rule.min_support_length_m if rule else None)
     before = result.segments_before_corners
     return replace(result, segments=optimise_corners(before, config.fusion.corners))
 
