@@ -53,7 +53,7 @@ class ProposedConfig(_Section):
     gamma: float = Field(0.3, ge=0, le=1, description="criterion 2: min feature-circle overlap S_overlap/S_min")
     eta_m: float = Field(0.5, ge=0, description="criterion 3: max relative distance d_max")
     min_support: int = Field(4, ge=1, description="drop clusters with fewer member segments")
-    min_support_length_m: float | None = Field(None, ge=0, description="also keep smaller clusters whose members cover at least this length of their line (null = the paper's count rule only)")
+    min_support_length_m: float | None = Field(5.0, ge=0, description="also keep smaller clusters whose members cover at least this length of their line (null = the paper's count rule only)")
     fit_weighting: Literal["length", "none"] = Field("length", description="weight of each member's endpoints in the TLS fit")
 
 

@@ -38,10 +38,10 @@ class Lines2DConfig(_Section):
     breakpoint_lambda_deg: float = Field(10.0, gt=0, lt=90, description="adaptive breakpoints: the shallowest beam incidence on one surface")
     range_sigma_m: float = Field(0.01, ge=0, description="adaptive breakpoints: range noise (adds 3 sigma)")
     jump_min_m: float = Field(0.1, ge=0, description="a gap this small never breaks a run")
-    jump_max_m: float = Field(1.0, gt=0, description="a gap this large always breaks a run")
+    jump_max_m: float = Field(0.3, gt=0, description="a gap this large always breaks a run (no segment bridges an opening or a sparse stretch)")
     split_distance_m: float = Field(0.05, gt=0, description="split a piece where a point lies this far from its chord; merge and trim with the same distance")
     min_points: int = Field(6, ge=2, description="drop segments with fewer points")
-    min_length_m: float = Field(0.4, ge=0, description="drop shorter segments")
+    min_length_m: float = Field(0.5, ge=0, description="drop shorter segments")
     max_rms_m: float = Field(0.03, gt=0, description="drop segments whose points lie farther than this (rms) from their line")
 
 
