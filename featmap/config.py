@@ -80,7 +80,7 @@ class CornerConfig(_Section):
         "intersection", description="midpoint = the paper's rule; intersection = ours; none = off")
     snap_distance_m: float = Field(1.0, ge=0, description="endpoints of different features closer than this are joined")
     min_angle_deg: float = Field(30.0, ge=0, le=90, description="intersection mode: lines must meet at least this steeply")
-    max_extension_m: float | None = Field(None, ge=0, description="intersection mode: join only if each endpoint moves at most this far along its own line to the corner (null = snap_distance_m)")
+    max_extension_m: float | None = Field(0.5, ge=0, description="intersection mode: join only if each endpoint moves at most this far along its own line to the corner (null = snap_distance_m)")
 
 
 class RefineConfig(_Section):

@@ -55,6 +55,59 @@ def extract_log(path: Path, config: Lines2DConfig):
     return log, np.concatenate(segments), np.concatenate(scans), points, seconds
 
 
+def failure_modes(fused: np.ndarray, labels: np.ndarray, segments: np.ndarray, points: np.ndarray,
+                  tolerance: float = 0.05) -> dict:
+    """The failure modes of issue 10, counted on one fused map (world frame, metres).
+
+    - ``door_spans``: stretches of 0.6-1.6 m inside a fused line with no scan point within the
+      tolerance (a line drawn across a doorway);
+    - ``max_off_m``: the largest distance from a fused line to the nearest scan point (a chord
+      bowing away from a curved wall, a line between two walls);
+    - ``two_walls``: features whose member segments lie on both sides of the fused line, 0.5 m or
+      more away (two walls of a corridor merged into one line down the middle);
+    - ``duplicates``: fused rows identical to another row;
+    - ``lost_wall_points``: share of wall points (within the tolerance of a raw segment) whose raw
+      segments were all dropped and that no fused line covers.
+    """
+    from scipy.spatial import cKDTree
+
+    from featmap.truth_free import SegmentIndex, sample_segments
+
+    samples, owner, weight = sample_segments(fused, 0.02)
+    dist, _ = cKDTree(points).query(samples)
+    off = dist > tolerance
+    spans = 0
+    if len(samples):
+        change = np.flatnonzero(np.diff(np.r_[0, off.astype(np.int8), 0]))
+        for start, stop in zip(change[::2], change[1::2]):
+            f = owner[start]
+            interior = start > 0 and owner[start - 1] == f and stop < len(owner) and owner[stop] == f
+            if interior and 0.6 <= weight[start:stop].sum() <= 1.6 and np.all(owner[start:stop] == f):
+                spans += 1
+    two_walls = 0
+    for k in range(len(fused)):
+        members = segments[labels == k]
+        if len(members) < 2:
+            continue
+        d = fused[k, 2:] - fused[k, :2]
+        n = np.array([-d[1], d[0]]) / max(np.hypot(*d), 1e-12)
+        side = (0.5 * (members[:, :2] + members[:, 2:]) - fused[k, :2]) @ n
+        two_walls += int(side.max() >= 0.5 and side.min() <= -0.5)
+    rounded = np.round(np.where((fused[:, [0]] > fused[:, [2]]), fused[:, [2, 3, 0, 1]], fused), 9)
+    duplicates = len(rounded) - len(np.unique(rounded, axis=0)) if len(rounded) else 0
+    wall = SegmentIndex(segments, tolerance).near(points)
+    dropped_only = SegmentIndex(segments[labels < 0], tolerance).near(points[wall]) if (labels < 0).any() else \
+        np.zeros(int(wall.sum()), bool)
+    if dropped_only.any():
+        kept = SegmentIndex(segments[labels >= 0], tolerance).near(points[wall][dropped_only])
+        covered = SegmentIndex(fused, tolerance).near(points[wall][dropped_only])
+        lost = float(np.count_nonzero(~kept & ~covered) / max(wall.sum(), 1))
+    else:
+        lost = 0.0
+    return {"door_spans": spans, "max_off_m": float(dist.max()) if len(dist) else 0.0,
+            "two_walls": two_walls, "duplicates": int(duplicates), "lost_wall_points": lost}
+
+
 def plot_log(path: Path, name: str, points: np.ndarray, maps: dict[str, np.ndarray], scores: dict) -> None:
     import matplotlib
 
@@ -82,6 +135,7 @@ def main() -> None:
     parser.add_argument("--logs", nargs="+", default=["intel", "aces", "fhw"])
     parser.add_argument("--figures", type=Path, default=None, help="write <log>.png here")
     parser.add_argument("--markdown", type=Path, default=None, help="also write the table as Markdown")
+    parser.add_argument("--failure-modes", action="store_true", help="also count the failure modes of issue 10")
     args = parser.parse_args()
 
     extraction = Lines2DConfig()
@@ -92,7 +146,7 @@ def main() -> None:
                "redundancy", "compression", "fusion s")
     for col in columns:
         table.add_column(col, justify="right")
-    rows = []
+    rows, failures = [], []
     for name in args.logs:
         path = args.data_dir / f"{name}-corrected.log.gz"
         log, segments, scan, points, seconds = extract_log(path, extraction)
@@ -108,12 +162,26 @@ def main() -> None:
                        f"{fusion_s:.2f}")
                 rows.append(row)
                 table.add_row(*row)
+                if args.failure_modes:
+                    failures.append((name, preset, method, failure_modes(result.segments, result.labels,
+                                                                        segments, points)))
                 if method == "proposed" and preset != "default":
                     figure_maps[preset], figure_scores[preset] = result.segments, m
         table.add_section()
         if args.figures is not None:
             plot_log(args.figures / f"{name}.png", name, points, figure_maps, figure_scores)
-    Console(width=160).print(table)
+    console = Console(width=160)
+    console.print(table)
+    if failures:
+        ftable = Table(title="failure modes (issue 10): doorway spans 0.6-1.6 m, farthest line sample from any "
+                             "point, lines across two walls >= 1 m apart, duplicate rows, wall points lost "
+                             "with dropped clusters")
+        for col in ("log", "preset", "method", "door spans", "max off m", "two walls", "duplicates", "lost wall pts"):
+            ftable.add_column(col, justify="right")
+        for name, preset, method, f in failures:
+            ftable.add_row(name, preset, method, str(f["door_spans"]), f"{f['max_off_m']:.2f}", str(f["two_walls"]),
+                           str(f["duplicates"]), f"{f['lost_wall_points']:.3f}")
+        console.print(ftable)
     if args.markdown is not None:
         lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
         lines += ["| " + " | ".join(r) + " |" for r in rows]

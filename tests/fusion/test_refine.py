@@ -144,7 +144,7 @@ def test_support_length_rule_keeps_a_long_wall_seen_twice():
     rng = np.random.default_rng(6)
     walls = np.array([[0, 0, 6, 0], [0, 5, 0.6, 5]], float)          # a 6 m wall and a 0.6 m object
     segs, scan = observe_walls(walls, 2, 0.005, rng, min_fraction=0.9)
-    paper = fuse("proposed", segs, scan, _config(min_support=4))
+    paper = fuse("proposed", segs, scan, _config(min_support=4, min_support_length_m=None))
     ours = fuse("proposed", segs, scan, _config(min_support=4, min_support_length_m=2.0))
     assert len(paper.segments) == 0
     assert len(ours.segments) == 1 and _offsets(ours.segments[0], walls[0]).max() < 0.02
