@@ -163,7 +163,7 @@ def split_inconsistent(segments: np.ndarray, labels: np.ndarray, weights: np.nda
             if along:
                 t_a = 0.5 * (segments[a_, :2] + segments[a_, 2:]) @ u
                 t_b = 0.5 * (segments[b_, :2] + segments[b_, 2:]) @ u
-                # mask holds the members sorted first along u: a_ lies before b_
+                # the mask takes the first members in the sorted order, so a_ lies before b_ along u
                 bends.append((int(a_[np.argmax(t_a)]), int(b_[np.argmin(t_b)])))
             stack.append(b_)
             stack.append(a_)
@@ -251,7 +251,7 @@ def merge_consistent(segments: np.ndarray, labels: np.ndarray, fused: np.ndarray
         c, u = _fit_line(np.concatenate([segments[members, :2], segments[members, 2:]]),
                          np.concatenate([weights[members], weights[members]]))
         # Along the merged line the two clusters must overlap or leave at most merge_gap_m between them.
-        gap = _gap_along(segments[clusters.members[ri]], segments[clusters.members[rj]], c, u)
+        gap = _gap_along(segments[mi], segments[mj], c, u)
         if gap > config.merge_gap_m:
             continue
         clusters.parent[rj] = ri
