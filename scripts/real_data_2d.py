@@ -114,12 +114,14 @@ def plot_log(path: Path, name: str, points: np.ndarray, maps: dict[str, np.ndarr
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(maps), figsize=(7 * len(maps), 7.2), sharex=True, sharey=True)
+    span = np.ptp(points, axis=0)
+    panel_w = float(np.clip(7.0 * span[0] / max(span[1], 1e-9), 3.2, 9.0))   # 7 in high, as wide as the map
+    fig, axes = plt.subplots(1, len(maps), figsize=(panel_w * len(maps) + 0.6, 7.6), sharex=True, sharey=True)
     for ax, (title, fused) in zip(np.atleast_1d(axes), maps.items()):
         ax.plot(points[:, 0], points[:, 1], ",", color="0.65", rasterized=True)
         ax.plot(fused[:, [0, 2]].T, fused[:, [1, 3]].T, "-", color="C3", lw=0.9)
         m = scores[title]
-        ax.set_title(f"{name}, {title}: {m.count} lines, P {m.precision:.3f}, R {m.recall:.3f}", fontsize=10)
+        ax.set_title(f"{name}, {title}\n{m.count} lines, P {m.precision:.3f}, R {m.recall:.3f}", fontsize=10)
         ax.set_aspect("equal")
         ax.set_xlabel("x (m, log frame)")
     np.atleast_1d(axes)[0].set_ylabel("y (m)")
