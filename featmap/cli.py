@@ -96,14 +96,17 @@ def fuse(
 
 
 def source_spec(drive: str | None, data_dir: Path, world: str | None, dataset: str | None, source: str | None,
-                frames: str | None, skip_bad_scans: bool):
+                carmen: Path | None, frames: str | None, skip_bad_scans: bool):
     """The scan source the flags of ``featmap run`` name (the embedded simulated drive by default)."""
     from featmap.datasets import SourceSpec
     from featmap.datasets.kitti_raw import drive_folder
 
-    given = [flag for flag, value in (("--drive", drive), ("--world", world), ("--dataset", dataset)) if value]
+    given = [flag for flag, value in (("--drive", drive), ("--world", world), ("--dataset", dataset),
+                                      ("--carmen", carmen)) if value]
     if len(given) > 1:
         _fail(f"{' and '.join(given)}: give one source")
+    if carmen is not None:
+        return SourceSpec("carmen", str(carmen), frames, skip_bad_scans)
     if dataset is not None:
         if source is None:
             _fail(f"--dataset {dataset}: give its --source LOCATION")
@@ -122,6 +125,7 @@ def run(
     world: Optional[str] = typer.Option(None, "--world", "-w", help="A simulated world (built-in name or file), simulated on first use; the default is residential."),
     dataset: Optional[str] = typer.Option(None, "--dataset", help="Any registered scan format (see featmap datasets), with --source."),
     source: Optional[str] = typer.Option(None, "--source", help="Location of the --dataset source (a folder or file)."),
+    carmen: Optional[Path] = typer.Option(None, "--carmen", help="A CARMEN 2D laser log (.log, .log.gz, .clf, .clf.bz2); uses the indoor_2d preset unless --config is given."),
     frames: Optional[str] = typer.Option(None, "--frames", help="start:stop:step selection of frames."),
     method: str = MethodOpt,
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Run folder (default: runs/<source name>)."),
@@ -132,15 +136,18 @@ def run(
     skip_bad_scans: bool = typer.Option(False, "--skip-bad-scans", help="Skip unreadable scans instead of failing."),
 ):
     """Turn a scan source into fused wall maps (the embedded simulated drive when no source is given)."""
-    from featmap.datasets import open_source
+    from featmap.datasets import DATASETS, open_source
     from featmap.fusion import resolve_methods
     from featmap.pipeline import MappingPipeline, SegmentStore, load_config, local_executor
 
-    cfg = load_config(config, set_ or [])
+    spec = source_spec(drive, data_dir, world, dataset, source, carmen, frames, skip_bad_scans)
+    preset = DATASETS[spec.kind].preset if spec.kind in DATASETS and config is None else None
+    cfg = load_config(config or preset, set_ or [])
     methods = resolve_methods(method)
-    spec = source_spec(drive, data_dir, world, dataset, source, frames, skip_bad_scans)
     store = SegmentStore(cache_dir)
     reporter = _reporter()
+    if preset is not None:
+        reporter.info(f"{spec.kind} source: using the {preset} preset (configs/{preset}.yaml); --config overrides it")
     scan_source = open_source(spec, reporter)
     with local_executor(workers) as executor:
         pipeline = MappingPipeline(cfg, methods, store, executor, reporter, skip_bad_scans)

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
-from featmap.datasets import kitti_raw, simulated
+from featmap.datasets import carmen, kitti_raw, simulated
 from featmap.datasets.base import ScanSource, SourceSpec
 from featmap.errors import DatasetError
 from featmap.reporting import NullReporter, Reporter
@@ -18,11 +18,13 @@ from featmap.reporting import NullReporter, Reporter
 
 @dataclass(frozen=True)
 class DatasetFormat:
-    """A registered format: its name, what a location is, and its opener."""
+    """A registered format: its name, what a location is, its opener, and the config preset a run of it
+    uses when no ``--config`` is given (a name in ``configs/``, or None for the defaults)."""
 
     name: str
     location_help: str
     open: Callable[..., ScanSource]
+    preset: str | None = None
 
 
 DATASETS: dict[str, DatasetFormat] = {f.name: f for f in (
@@ -30,6 +32,7 @@ DATASETS: dict[str, DatasetFormat] = {f.name: f for f in (
                   kitti_raw.open_drive_folder),
     DatasetFormat("simulated", "a built-in world name (residential, prescan_case1, ...) or a world .yaml/.geojson file",
                   simulated.open_world),
+    DatasetFormat("carmen", "a CARMEN 2D laser log: .log, .log.gz, .clf or .clf.bz2", carmen.open_log, preset="indoor_2d"),
 )}
 
 

@@ -1,8 +1,8 @@
 """Evaluation plug-ins: each scores fused maps against one kind of reference, when the run has it.
 
 The pipeline asks every plug-in in ``EVALUATORS`` to ``prepare`` a reference from what the run knows
-(where the scans came from, the frames processed, the geo frame, the config); a plug-in that finds
-nothing returns None and is skipped. ``score`` then maps fused segments to a dict of metrics. The
+(where the scans came from, the frames processed, the geo frame, the config, the scans' points and the
+extracted segments); a plug-in that finds nothing returns None and is skipped. ``score`` then maps fused segments to a dict of metrics. The
 first plug-in that prepared a reference is the run's *primary* score (summary table, sweeps).
 
 A new metric is one plug-in class here (or in its own module) plus one entry in ``EVALUATORS``.
@@ -19,6 +19,7 @@ from pydantic import Field
 
 from featmap.config import Section
 from featmap.errors import ConfigError
+from featmap.evaluation.map_metric import TruthFreeConfig, truth_free_metrics
 from featmap.evaluation.references import load_simulator_truth, truth_from_footprints
 from featmap.evaluation.truth_metrics import truth_metrics
 from featmap.geo import GeoFrame
@@ -29,6 +30,7 @@ class EvaluationConfig(Section):
     """References to score fused maps against (besides a simulated drive's own ground truth)."""
 
     footprints: Optional[str] = Field(None, description="building footprints (.geojson, WGS84) to score against, e.g. from OpenStreetMap")
+    map: TruthFreeConfig = TruthFreeConfig()
 
 
 @dataclass(frozen=True)
@@ -40,12 +42,16 @@ class EvaluationContext:
         frames: frame numbers of the scans processed (None: all of the source's).
         geo_frame: WGS84 origin of the run's local frame, or None.
         config: the ``evaluation:`` section.
+        points: (P, 2) the scans' structure points in the world frame (from the extractor), or None.
+        raw_segments: (N, 4) the extracted segments in the world frame, or None.
     """
 
     location: Path | None
     frames: list[int] | None
     geo_frame: GeoFrame | None
     config: EvaluationConfig
+    points: np.ndarray | None = None
+    raw_segments: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -103,4 +109,19 @@ class Footprints:
         return truth_metrics(fused, reference.data)
 
 
-EVALUATORS: tuple[Evaluator, ...] = (SimulatorTruth(), Footprints())
+class MapQuality:
+    """The truth-free map metric against the scans' own points (any run whose extractor gives them)."""
+
+    name = "map"
+
+    def prepare(self, context: EvaluationContext) -> Reference | None:
+        if context.points is None or context.raw_segments is None or not len(context.points):
+            return None
+        return Reference((context.points, context.raw_segments, context.config.map), "scan points")
+
+    def score(self, reference: Reference, fused: np.ndarray) -> dict:
+        points, raw, config = reference.data
+        return truth_free_metrics(fused, points, raw, config).to_dict()
+
+
+EVALUATORS: tuple[Evaluator, ...] = (SimulatorTruth(), Footprints(), MapQuality())

@@ -22,6 +22,9 @@ class ScanSegments:
         z_mean: (K,) mean height of each piece's points (3D only, sensor frame): where to lift the
             endpoints before moving them to the world frame. None for a 2D laser.
         z_min, z_max: (K,) vertical extent of each piece (3D only, sensor frame). None for a 2D laser.
+        support_points: (P, 2) the scan's structure points in the sensor's x-y plane (every return of a
+            2D laser; the wall candidates of a 3D LiDAR), for the truth-free map metric; None when the
+            extractor does not provide them.
     """
 
     segments: np.ndarray
@@ -30,6 +33,7 @@ class ScanSegments:
     z_mean: np.ndarray | None = None
     z_min: np.ndarray | None = None
     z_max: np.ndarray | None = None
+    support_points: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.segments)
@@ -37,6 +41,13 @@ class ScanSegments:
     @property
     def dimension(self) -> int:
         return 2 if self.z_mean is None else 3
+
+    def support_points_world(self, T_world_sensor: np.ndarray) -> np.ndarray | None:
+        """(P, 2) support points in the world frame's x-y plane (lifted to z = 0 of the sensor), or None."""
+        if self.support_points is None:
+            return None
+        pts = np.column_stack([self.support_points, np.zeros(len(self.support_points))])
+        return (pts @ T_world_sensor[:3, :3].T + T_world_sensor[:3, 3])[:, :2]
 
     @staticmethod
     def empty(dimension: int = 3) -> "ScanSegments":
@@ -57,7 +68,10 @@ class ScanSegments:
             if f.name == "segments" or f.name not in arrays:
                 continue
             value = np.asarray(arrays[f.name])
-            if value.shape != (k,):
+            if f.name == "support_points":
+                if value.ndim != 2 or value.shape[1] != 2:
+                    raise ValueError(f"'support_points' has shape {value.shape}, expected (P, 2)")
+            elif value.shape != (k,):
                 raise ValueError(f"'{f.name}' has shape {value.shape}, expected ({k},)")
             out[f.name] = value
         if "n_points" not in out or "rms" not in out:

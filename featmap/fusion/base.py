@@ -6,7 +6,7 @@ All arrays are in the local metric world frame (metres).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Optional
 
 import numpy as np
 
@@ -53,6 +53,8 @@ class FusionMethod:
         color, linestyle: how figures and maps draw it.
         config_type: the method's config section (a :class:`featmap.config.Section`).
         fuse: ``fuse(segments (N, 4) world frame, scan (N,), config) -> FusionResult`` (before corner optimisation).
+        support_rule: ``config -> (min_support, min_support_length_m)`` for a method that drops small clusters
+            (refinement applies the same rule to the features it makes); None: every cluster is kept.
     """
 
     name: str
@@ -61,6 +63,7 @@ class FusionMethod:
     linestyle: str
     config_type: type[Section]
     fuse: Callable[[np.ndarray, np.ndarray, Any], "FusionResult"]
+    support_rule: Callable[[Any], tuple[int, Optional[float]]] | None = None
 
 
 def validate_input(segments, scan) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -8,7 +8,8 @@ Two segments extracted in *different* scans are linked when all three criteria h
 3. relative distance ``d_max = max(d(O_i, seg_j), d(O_j, seg_i)) <= eta`` (eqs. 12-13).
 
 Clusters are the connected groups of linked segments (what the paper's sequential labelling of
-Section 3.2 produces); clusters with fewer than ``min_support`` members are dropped; each remaining
+Section 3.2 produces); clusters with fewer than ``min_support`` members are dropped (unless, with
+``min_support_length_m``, their members cover that much of one line); each remaining
 cluster becomes the total-least-squares line through its members' endpoints, cut at the extreme
 projections of those endpoints.
 
@@ -20,7 +21,7 @@ about linearly with the number of segments for a map of bounded density.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, Optional
 
 import numpy as np
 from pydantic import Field
@@ -31,6 +32,7 @@ from scipy.spatial import cKDTree
 from featmap.config import Section
 from featmap.fusion.base import (FusionMethod, FusionResult, fit_clusters, relabel_by_first_appearance,
                                  validate_input)
+from featmap.fusion.gaps import observed_length
 from featmap.geometry import (circle_overlap_area, included_angle, line_coefficients, point_segment_distance,
                               segment_lengths, segment_midpoints)
 
@@ -44,6 +46,7 @@ class ProposedConfig(Section):
     gamma: float = Field(0.3, ge=0, le=1, description="criterion 2: min feature-circle overlap S_overlap/S_min")
     eta_m: float = Field(0.5, ge=0, description="criterion 3: max relative distance d_max")
     min_support: int = Field(4, ge=1, description="drop clusters with fewer member segments")
+    min_support_length_m: Optional[float] = Field(5.0, ge=0, description="also keep smaller clusters whose members cover at least this length of their line (null = the paper's count rule only)")
     fit_weighting: Literal["length", "none"] = Field("length", description="weight of each member's endpoints in the TLS fit")
 
 
@@ -152,6 +155,12 @@ def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig()) -> 
     i, j = linked_pairs(seg, sc, config)
     groups, sizes = cluster_segments(len(seg), i, j, sc, seg)
     kept = sizes >= config.min_support
+    if config.min_support_length_m is not None and not kept.all():
+        # Few views of a wall still make it a wall when they cover enough of one line.
+        small = ~kept[groups]
+        lines = fit_clusters(seg, groups, len(sizes), segment_lengths(seg))
+        covered = observed_length(lines, seg, np.where(small, groups, -1))
+        kept |= covered >= config.min_support_length_m
     new_id = np.full(len(sizes), -1, dtype=np.int64)
     new_id[kept] = np.arange(kept.sum())
     sub_labels = new_id[groups]
@@ -165,4 +174,5 @@ def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig()) -> 
 
 
 METHOD = FusionMethod(name="proposed", title="Proposed (three criteria)", color="#d62728", linestyle="-",
-                      config_type=ProposedConfig, fuse=fuse_proposed)
+                      config_type=ProposedConfig, fuse=fuse_proposed,
+                      support_rule=lambda config: (config.min_support, config.min_support_length_m))

@@ -2,8 +2,8 @@
 
 ``METHODS`` is the one table of methods: name, title, colour and line style for figures, config
 section and function. ``FusionConfig`` (the ``fusion:`` section of a run's config) is derived from it:
-one section per method plus ``corners``, the corner optimisation that runs identically after every
-method (as the paper does for its Table 2).
+one section per method, plus ``refine`` (the clean-up) and ``corners`` (the corner optimisation) that run
+identically after every method (as the paper does for its Table 2).
 
 A new method is one module (its function, its config section and a ``METHOD`` entry) plus one line in
 ``METHODS`` below.
@@ -21,14 +21,16 @@ from featmap.errors import ConfigError
 from featmap.fusion import density, meanshift, proposed
 from featmap.fusion.base import FusionMethod, FusionResult
 from featmap.fusion.corners import CornerConfig, optimise_corners
+from featmap.fusion.refine import RefineConfig, refine
 from featmap.geometry import as_segments
 
 METHODS: tuple[FusionMethod, ...] = (proposed.METHOD, meanshift.METHOD, density.METHOD)
 FUSION_METHODS: dict[str, FusionMethod] = {m.name: m for m in METHODS}
 
 FusionConfig = create_model(
-    "FusionConfig", __base__=Section, __doc__="Fusion: one section per method, and the shared corner optimisation.",
-    **{m.name: (m.config_type, m.config_type()) for m in METHODS}, corners=(CornerConfig, CornerConfig()))
+    "FusionConfig", __base__=Section, __doc__="Fusion: one section per method, and the shared clean-up and corner optimisation.",
+    **{m.name: (m.config_type, m.config_type()) for m in METHODS}, refine=(RefineConfig, RefineConfig()),
+    corners=(CornerConfig, CornerConfig()))
 
 
 def get_method(name: str) -> FusionMethod:
@@ -74,7 +76,8 @@ def working_origin(segments: np.ndarray) -> np.ndarray:
 
 
 def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig()) -> FusionResult:  # type: ignore[valid-type]
-    """Run method ``name`` with its section of ``config`` (the ``fusion:`` section), then corner optimisation.
+    """Run method ``name`` with its section of ``config`` (the ``fusion:`` section), then the shared
+    refinement (``fusion.refine``: consistent clusters, gap splitting) and corner optimisation.
 
     Args:
         segments: (N, 4) world-frame segments ``x1, y1, x2, y2`` (metres).
@@ -84,7 +87,10 @@ def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig()) -> Fu
     segments = as_segments(segments)
     origin = working_origin(segments[np.isfinite(segments).all(axis=1)])
     shift = np.tile(origin, 2)
-    result = method.fuse(segments - shift, scan, getattr(config, name))
+    section = getattr(config, name)
+    result = method.fuse(segments - shift, scan, section)
+    min_support, min_length = method.support_rule(section) if method.support_rule else (1, None)
+    result = refine(result, segments - shift, scan, config.refine, min_support, min_length)
     before = result.segments_before_corners
     after = optimise_corners(before, config.corners)
     if not origin.any():

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from featmap.config import Section, commented_yaml, load_config_file, to_yaml, validate_config
+from featmap.errors import ConfigError
 from featmap.evaluation import EvaluationConfig
 from featmap.extraction import ExtractionConfig
 from featmap.fusion import FusionConfig
@@ -29,9 +30,25 @@ class FeatmapConfig(Section):
         return to_yaml(self)
 
 
+PRESETS_DIR = Path(__file__).resolve().parents[2] / "configs"
+"""Named presets (``--config paper``, ``--config indoor_2d``): the YAML files in the source tree's ``configs/``."""
+
+
+def resolve_config_path(path: str | Path) -> Path:
+    """A config file's path: ``path`` itself when it exists, else the preset of that name in ``configs/``."""
+    path = Path(path)
+    if path.exists() or path.suffix in (".yaml", ".yml") or len(path.parts) > 1:
+        return path
+    preset = PRESETS_DIR / f"{path.name}.yaml"
+    if preset.is_file():
+        return preset
+    names = sorted(p.stem for p in PRESETS_DIR.glob("*.yaml")) if PRESETS_DIR.is_dir() else []
+    raise ConfigError(f"--config {path}: no such file, nor a preset" + (f" ({', '.join(names)})" if names else ""))
+
+
 def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -> FeatmapConfig:
-    """Defaults, then the YAML file at ``path`` (if any), then ``--set key=value`` overrides."""
-    return load_config_file(FeatmapConfig, path, overrides)
+    """Defaults, then the YAML file (or named preset) at ``path`` (if any), then ``--set key=value`` overrides."""
+    return load_config_file(FeatmapConfig, None if path is None else resolve_config_path(path), overrides)
 
 
 def config_from_dict(data: dict[str, Any], source: str = "config") -> FeatmapConfig:

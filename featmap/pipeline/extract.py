@@ -68,6 +68,15 @@ class Extraction:
                             extra={k: np.concatenate([e[k] for e in extras]).astype(float) for k in names})
 
 
+    def world_points(self, poses: np.ndarray | None = None) -> np.ndarray | None:
+        """(P, 2) the scans' support points (structure points from the extractor) in the world frame, or
+        None when the extractor gives none."""
+        poses = self.poses if poses is None else poses
+        parts = [s.support_points_world(T) for s, T in zip(self.scans, poses)]
+        parts = [p for p in parts if p is not None]
+        return np.concatenate(parts) if parts else None
+
+
 def _extract_one(task: tuple[int, str, np.ndarray, Extractor, object]) -> tuple[int, str, ScanSegments, float]:
     """Executor task: (frame, key, points, extractor, config section) -> (frame, key, segments, seconds)."""
     frame, key, points, extractor, section = task

@@ -94,7 +94,8 @@ class MappingPipeline:
             import_seconds = warm_up(self.methods, self.config.fusion)
             runs = fuse_methods(table, self.methods, self.config.fusion, self.reporter)
             t_eval = time.perf_counter()
-            context = EvaluationContext(source.location, extraction.frames, source.geo_origin, self.config.evaluation)
+            context = EvaluationContext(source.location, extraction.frames, source.geo_origin, self.config.evaluation,
+                                        extraction.world_points(), table.segments)
             references = prepare_references(context)
             scores = score_methods(runs, references)
             eval_seconds = time.perf_counter() - t_eval
@@ -146,7 +147,8 @@ def _median(values: list[float]) -> float | None:
 
 
 SUMMARY_COLUMNS = [("count_ratio", 2, "count_ratio"), ("precision", 3, "precision"), ("recall", 3, "recall"),
-                   ("redundancy", 2, "redundancy"), ("offset_cm", 1, "offset cm"), ("corner_err_cm", 1, "corner cm")]
+                   ("redundancy", 2, "redundancy"), ("offset_cm", 1, "offset cm"), ("corner_err_cm", 1, "corner cm"),
+                   ("compression", 1, "compression")]
 
 
 def report_run(result: RunResult, reporter: Reporter) -> None:

@@ -57,3 +57,20 @@ def city_walls(n_walls: int, rng: np.random.Generator, block_m: float = 60.0) ->
         else:
             walls.append([bx + 15.0, by + 20.0 + offset, bx + 15.0, by + 20.0 + offset + length])
     return np.asarray(walls)
+
+
+def cast_rays_2d(walls: np.ndarray, pose: np.ndarray, angles: np.ndarray, max_range: float = 80.0) -> np.ndarray:
+    """Ranges (n,) of a 2D laser at ``pose`` (x, y, theta) with beams at ``angles`` (n,) (laser frame)
+    through ``walls`` (W, 4); ``max_range`` where a beam hits nothing. Exact ray-segment intersection."""
+    walls = np.asarray(walls, float).reshape(-1, 4)
+    heading = pose[2] + np.asarray(angles, float)
+    d = np.stack([np.cos(heading), np.sin(heading)], axis=1)[:, None, :]          # (n, 1, 2)
+    a, e = walls[None, :, :2], (walls[:, 2:] - walls[:, :2])[None]                # (1, W, 2)
+    w = a - np.asarray(pose[:2], float)
+    cross = d[..., 0] * e[..., 1] - d[..., 1] * e[..., 0]                          # (n, W)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (w[..., 0] * e[..., 1] - w[..., 1] * e[..., 0]) / cross               # distance along the beam
+        u = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / cross               # position on the wall
+    hit = (np.abs(cross) > 1e-12) & (t > 0) & (u >= 0) & (u <= 1)
+    t = np.where(hit, t, np.inf).min(axis=1)
+    return np.where(np.isfinite(t) & (t <= max_range), t, max_range)

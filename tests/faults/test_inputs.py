@@ -97,7 +97,7 @@ def test_bad_config_files(tmp_path, segments_csv):
 
 def test_a_method_that_keeps_nothing_warns(tmp_path, segments_csv):
     res = cli("fuse", segments_csv, "--out", tmp_path / "o", "--method", "proposed", "--set",
-              "fusion.proposed.min_support=1000")
+              "fusion.proposed.min_support=1000", "--set", "fusion.proposed.min_support_length_m=null")
     assert res.exit_code == 0 and "proposed: no feature from 20 segments" in res.output
 
 

@@ -110,9 +110,9 @@ def test_empty_and_zero_length_inputs():
 def test_same_scan_features_are_never_linked():
     # Two identical segments from one scan: criteria hold, but the paper only compares k with k - i.
     segs = np.array([[0, 0, 10, 0], [0, 0.01, 10, 0.01]], float)
-    result = fuse_proposed(segs, np.array([0, 0]), ProposedConfig(min_support=2))
+    result = fuse_proposed(segs, np.array([0, 0]), ProposedConfig(min_support=2, min_support_length_m=None))
     assert len(result.segments) == 0
-    result = fuse_proposed(segs, np.array([0, 1]), ProposedConfig(min_support=2))
+    result = fuse_proposed(segs, np.array([0, 1]), ProposedConfig(min_support=2, min_support_length_m=None))
     assert len(result.segments) == 1
 
 
@@ -132,7 +132,7 @@ def test_criteria_values_for_hand_made_pair():
 def test_each_criterion_can_veto_a_link():
     base = np.array([[0, 0, 10, 0], [0, 0.1, 10, 0.1]], float)
     scan = np.array([0, 1])
-    ok = ProposedConfig(min_support=2)
+    ok = ProposedConfig(min_support=2, min_support_length_m=None)   # the paper's count rule only
     assert len(fuse_proposed(base, scan, ok).segments) == 1
     rotated = np.array([[0, 0, 10, 0], [0, -0.5, 10, 0.5]], float)       # beta ~ 5.7 deg
     assert len(fuse_proposed(rotated, scan, ok.model_copy(update={"delta_deg": 5.0})).segments) == 0

@@ -45,7 +45,7 @@ def test_every_method_has_its_config_section_with_its_defaults():
     for name, method in FUSION_METHODS.items():
         section = getattr(cfg, name)
         assert type(section) is method.config_type and section == method.config_type()
-    assert set(FusionConfig.model_fields) == set(FUSION_METHODS) | {"corners"}
+    assert set(FusionConfig.model_fields) == set(FUSION_METHODS) | {"refine", "corners"}
 
 
 @pytest.mark.parametrize("name", list(FUSION_METHODS))

@@ -1,0 +1,114 @@
+"""Where the members of a fused feature actually cover its line, and splitting it at unobserved gaps.
+
+A fused feature is drawn between the extreme projections of its members. When a wall has a doorway,
+or two walls lie in line with a passage between them, no member covers the opening, yet the fused
+line spans it. :func:`split_at_gaps` cuts every fused feature where the union of its members'
+projections leaves a gap longer than ``min_gap_m``; each piece keeps the feature's line.
+
+Used by every method (see :func:`featmap.fusion.registry.fuse`). All arrays in the world frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from featmap.geometry import segment_lengths
+
+
+def member_intervals(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Projections of member segments onto their feature's line.
+
+    Args:
+        fused: (M, 4) fused features; segments: (N, 4) input segments; labels: (N,) feature of each
+            segment or -1.
+    Returns:
+        (member index (K,) into ``segments``, lo (K,), hi (K,)): the interval each member covers, as
+        arc length from the feature's first endpoint (clipped to ``[0, length]``).
+    """
+    idx = np.flatnonzero(labels >= 0)
+    f = fused[labels[idx]]
+    length = segment_lengths(f)
+    u = np.zeros((len(idx), 2))
+    ok = length > 0
+    u[ok] = (f[ok, 2:] - f[ok, :2]) / length[ok, None]
+    t1 = np.einsum("ij,ij->i", segments[idx, :2] - f[:, :2], u)
+    t2 = np.einsum("ij,ij->i", segments[idx, 2:] - f[:, :2], u)
+    lo = np.clip(np.minimum(t1, t2), 0.0, length)
+    hi = np.clip(np.maximum(t1, t2), 0.0, length)
+    return idx, lo, hi
+
+
+def interval_union(group: np.ndarray, lo: np.ndarray, hi: np.ndarray, n_groups: int,
+                   min_gap: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Union of 1D intervals per group, joining pieces separated by at most ``min_gap``.
+
+    Args:
+        group: (K,) group of each interval in ``[0, n_groups)``; lo, hi: (K,) interval ends.
+    Returns:
+        (piece group (P,), piece lo (P,), piece hi (P,), piece of each input interval (K,)); pieces
+        are sorted by group, then position.
+    """
+    if len(group) == 0:
+        z = np.zeros(0)
+        return np.zeros(0, np.int64), z, z, np.zeros(0, np.int64)
+    order = np.lexsort((lo, group))
+    g, a, b = group[order], lo[order], hi[order]
+    span = max(np.abs(a).max(), np.abs(b).max()) * 2 + min_gap + 1.0
+    shifted = b + g * span                                  # cumulative max restarts per group
+    reach = np.maximum.accumulate(shifted) - g * span       # max hi so far within the group
+    new_piece = np.ones(len(g), dtype=bool)
+    new_piece[1:] = (g[1:] != g[:-1]) | (a[1:] > reach[:-1] + min_gap)
+    piece_sorted = np.cumsum(new_piece) - 1
+    n_pieces = int(piece_sorted[-1]) + 1
+    p_lo = np.full(n_pieces, np.inf)
+    p_hi = np.full(n_pieces, -np.inf)
+    np.minimum.at(p_lo, piece_sorted, a)
+    np.maximum.at(p_hi, piece_sorted, b)
+    p_group = g[new_piece]
+    piece = np.empty(len(g), dtype=np.int64)
+    piece[order] = piece_sorted
+    return p_group.astype(np.int64), p_lo, p_hi, piece
+
+
+def observed_length(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """(M,) length of each feature's line covered by at least one member (overlaps counted once)."""
+    idx, lo, hi = member_intervals(fused, segments, labels)
+    group, p_lo, p_hi, _ = interval_union(labels[idx], lo, hi, len(fused))
+    return np.bincount(group, p_hi - p_lo, minlength=len(fused))
+
+
+def split_at_gaps(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray,
+                  min_gap_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cut fused features where their members leave more than ``min_gap_m`` of the line uncovered.
+
+    Each piece is the part of the feature's line between the extreme projections of the members in
+    it (a member belongs to the piece that contains its projection); the line itself is unchanged.
+
+    Args:
+        fused: (M, 4) fused features; segments: (N, 4) input segments; labels: (N,) their feature or -1.
+    Returns:
+        (pieces (P, 4), new labels (N,) into the pieces, parent feature of each piece (P,)).
+        Features without members are kept whole.
+    """
+    fused = np.asarray(fused, dtype=float).reshape(-1, 4)
+    labels = np.asarray(labels, dtype=np.int64)
+    idx, lo, hi = member_intervals(fused, segments, labels)
+    group, p_lo, p_hi, piece = interval_union(labels[idx], lo, hi, len(fused), min_gap_m)
+    orphans = np.setdiff1d(np.arange(len(fused)), group)
+    length = segment_lengths(fused)
+    if len(orphans):                         # keep features that have no members as they are
+        group = np.concatenate([group, orphans])
+        p_lo = np.concatenate([p_lo, np.zeros(len(orphans))])
+        p_hi = np.concatenate([p_hi, length[orphans]])
+    order = np.lexsort((p_lo, group))
+    rank = np.empty(len(order), dtype=np.int64)
+    rank[order] = np.arange(len(order))
+    group, p_lo, p_hi = group[order], p_lo[order], p_hi[order]
+    f = fused[group]
+    u = np.zeros((len(f), 2))
+    ok = length[group] > 0
+    u[ok] = (f[ok, 2:] - f[ok, :2]) / length[group][ok, None]
+    pieces = np.concatenate([f[:, :2] + p_lo[:, None] * u, f[:, :2] + p_hi[:, None] * u], axis=1)
+    new_labels = np.full(len(labels), -1, dtype=np.int64)
+    new_labels[idx] = rank[piece]
+    return pieces, new_labels, group

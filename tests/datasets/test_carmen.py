@@ -1,0 +1,47 @@
+"""CARMEN logs as a scan source: beam-order points in the laser frame, the first pose, frame selections."""
+
+import numpy as np
+import pytest
+
+from featmap.datasets import ScanSource, SourceSpec, open_source
+from featmap.datasets.carmen import CarmenSource, log_name, pose_matrix
+from featmap.errors import DatasetError, InputFileError
+from tests.conftest import shared_data
+
+
+def _log(tmp_path):
+    ranges = " ".join(["2.0"] * 90 + ["81.83"] * 90)      # half the beams see a wall 2 m away, half nothing
+    lines = [f"FLASER 180 {ranges} {x:.1f} 0.5 {th:.4f} 0 0 0 {t:.1f} host {t:.1f}"
+             for x, th, t in ((0.0, 0.0, 10.0), (1.0, np.pi / 2, 10.5), (2.0, np.pi, 11.0))]
+    path = tmp_path / "tiny.log"
+    path.write_text("# a comment\nPARAM x 1 nohost 0\n" + "\n".join(lines) + "\n")
+    return path
+
+
+def test_scans_poses_and_selection(tmp_path):
+    source = open_source(SourceSpec("carmen", str(_log(tmp_path)), "1:3"))
+    assert isinstance(source, ScanSource) and source.dimension == 2 and source.geo_origin is None
+    assert source.name == "tiny" and source.frames == [1, 2] and len(source) == 2
+    scan = source[0]
+    assert scan.index == 1 and scan.points.shape == (90, 2) and scan.timestamp == pytest.approx(0.5)
+    # beam k at -90 deg + k deg: the first beam looks along -y of the laser
+    assert scan.points[0] == pytest.approx([0.0, -2.0], abs=1e-9)
+    assert np.hypot(*scan.points.T) == pytest.approx(np.full(90, 2.0))
+    assert scan.T_world_sensor[:2, 3] == pytest.approx([1.0, 0.5])
+    assert np.allclose(source.poses()[1], pose_matrix(np.array([2.0, 0.5, np.pi])), atol=1e-4)
+    with pytest.raises(DatasetError, match="--frames 2:9: tiny has 3 frames"):
+        CarmenSource(_log(tmp_path), "2:9")
+
+
+def test_names_and_bad_files(tmp_path):
+    assert log_name("intel-corrected.log.gz") == "intel-corrected" and log_name("aces.clf.bz2") == "aces"
+    bad = tmp_path / "bad.log"
+    bad.write_text("FLASER 180 1 2 3\n")
+    with pytest.raises(InputFileError, match=r"bad.log:1"):
+        CarmenSource(bad)
+
+
+def test_the_shipped_intel_log():
+    path = shared_data("carmen_2d", "intel-corrected.log.gz")
+    source = CarmenSource(path, "0:100")
+    assert len(source) == 100 and 100 < len(source[0].points) <= 180

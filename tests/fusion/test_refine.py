@@ -1,0 +1,181 @@
+"""Shared refinement: consistent clusters, merged duplicates, gap splitting, the support rule."""
+
+import numpy as np
+import pytest
+
+from featmap.evaluation.map_metric import sample_segments, truth_free_metrics
+from featmap.fusion import FusionConfig, fuse
+from featmap.fusion.base import FusionResult, fit_clusters
+from featmap.fusion.gaps import interval_union, observed_length, split_at_gaps
+from featmap.fusion.refine import RefineConfig, refine
+from featmap.geometry import point_segment_distance, segment_lengths
+from featmap.simulation.segments import observe_walls
+
+REFINE = RefineConfig(max_offset_m=0.07, split_gap_m=0.3)
+
+
+def _config(**proposed):
+    return FusionConfig.model_validate({"refine": REFINE.model_dump(), "corners": {"mode": "none"},
+                                        "proposed": {"eta_m": 0.2, **proposed}})
+
+
+def _one_cluster(segs, scan):
+    """A FusionResult that put every segment into one cluster (what an over-eager clustering does)."""
+    labels = np.zeros(len(segs), np.int64)
+    fused = fit_clusters(segs, labels, 1, segment_lengths(segs))
+    return FusionResult(fused, np.array([len(segs)]), labels, fused)
+
+
+def _offsets(fused, wall):
+    p, q = wall[:2], wall[2:]
+    n = np.array([-(q - p)[1], (q - p)[0]]) / np.hypot(*(q - p))
+    return np.abs((fused.reshape(-1, 2) - p) @ n)
+
+
+def test_two_parallel_surfaces_in_one_cluster_are_split():
+    rng = np.random.default_rng(0)
+    walls = np.array([[0, 0, 10, 0], [0, 0.15, 10, 0.15]], float)      # a wall and a cabinet 15 cm before it
+    segs, scan = observe_walls(walls, 10, 0.01, rng, min_fraction=0.6, first_scan=np.array([0, 0]))
+    out = refine(_one_cluster(segs, scan), segs, scan, REFINE)
+    assert len(out.segments) == 2
+    for wall in walls:
+        near = [f for f in out.segments if _offsets(f, wall).max() < 0.02]
+        assert len(near) == 1
+    # every member belongs to the feature of its own surface
+    for k, f in enumerate(out.segments):
+        members = segs[out.labels == k]
+        assert np.ptp(0.5 * (members[:, 1] + members[:, 3])) < 0.1
+
+
+def test_one_noisy_wall_stays_one_feature():
+    rng = np.random.default_rng(1)
+    wall = np.array([0.0, 0.0, 12.0, 1.0])
+    segs, scan = observe_walls(wall, 25, 0.02, rng, min_fraction=0.4)
+    for name in ("proposed", "density", "meanshift"):
+        result = fuse(name, segs, scan, _config(min_support=2))
+        assert len(result.segments) == 1, name
+        assert _offsets(result.segments[0], wall).max() < 0.03
+
+
+def _arc_observations(rng, radius=5.0, n_scans=30):
+    """Views of a curved wall (60 deg of a 5 m circle) as straight chords of about 1 m."""
+    segs, scan = [], []
+    for k in range(n_scans):
+        start = rng.uniform(-0.55, 0.35)
+        for a in np.arange(start, start + 0.4, 0.2):
+            p = radius * np.array([np.cos(a), np.sin(a)])
+            q = radius * np.array([np.cos(a + 0.2), np.sin(a + 0.2)])
+            segs.append(np.r_[p, q] + rng.normal(0, 0.005, 4))
+            scan.append(k)
+    return np.array(segs), np.array(scan)
+
+
+def test_curved_wall_becomes_joined_chords_on_the_arc():
+    rng = np.random.default_rng(2)
+    segs, scan = _arc_observations(rng)
+    plain = fuse("proposed", segs, scan, FusionConfig.model_validate({"corners": {"mode": "none"},
+                                                                      "proposed": {"eta_m": 0.2}}))
+    refined = fuse("proposed", segs, scan, _config(min_support=2))
+    assert len(plain.segments) < len(refined.segments)
+    # every fused sample lies within 5 cm of the arc; the plain chord bows far off it
+    for result, ok in ((refined, True), (plain, False)):
+        samples, _, _ = sample_segments(result.segments, 0.05)
+        assert (np.abs(np.hypot(*samples.T) - 5.0).max() < 0.05) == ok
+    # consecutive chords meet instead of overlapping: no redundancy
+    points, _, _ = sample_segments(np.array([[5 * np.cos(a), 5 * np.sin(a), 5 * np.cos(a + 0.01), 5 * np.sin(a + 0.01)]
+                                             for a in np.arange(-0.55, 0.75, 0.01)]), 0.01)
+    m = truth_free_metrics(refined.segments, points, segs)
+    assert m.redundancy < 0.02 and m.precision > 0.99
+
+
+def test_doorway_splits_the_fused_line():
+    rng = np.random.default_rng(3)
+    left, right = np.array([0.0, 0.0, 4.0, 0.0]), np.array([5.0, 0.0, 9.0, 0.0])    # 1 m door between
+    segs, scan = observe_walls(np.array([left, right]), 12, 0.01, rng, min_fraction=0.7,
+                               first_scan=np.array([0, 0]))
+    segs = np.vstack([segs, [[0.2, 0.0, 8.8, 0.0]]])[:-1]                               # (no bridging view)
+    labels = np.zeros(len(segs), np.int64)
+    fused = fit_clusters(segs, labels, 1)
+    pieces, new_labels, parent = split_at_gaps(fused, segs, labels, 0.3)
+    assert len(pieces) == 2 and parent.tolist() == [0, 0]
+    xs = np.sort(pieces[:, [0, 2]], axis=1)
+    assert xs[0, 1] <= 4.05 and xs[1, 0] >= 4.95           # nothing drawn across the door
+    assert set(new_labels[segs[:, 0] < 4.5]) == {0} and set(new_labels[segs[:, 0] > 4.5]) == {1}
+    # through the registry, with every method
+    for name in ("proposed", "density"):
+        result = fuse(name, segs, np.arange(len(segs)) % 12, _config(min_support=2))
+        assert len(result.segments) == 2, name
+
+
+def test_views_of_one_wall_left_in_two_clusters_are_merged():
+    rng = np.random.default_rng(4)
+    wall = np.array([0.0, 0.0, 20.0, 0.0])
+    segs, scan = observe_walls(wall, 16, 0.01, rng, min_fraction=0.3)
+    mid = 0.5 * (segs[:, 0] + segs[:, 2])
+    labels = (mid > 10).astype(np.int64)
+    fused = fit_clusters(segs, labels, 2)
+    result = FusionResult(fused, np.bincount(labels), labels, fused)
+    out = refine(result, segs, scan, REFINE)
+    assert len(out.segments) == 1 and out.support.tolist() == [len(segs)]
+    # two parallel walls 30 cm apart are never merged
+    segs2, scan2 = observe_walls(np.array([[0, 0, 10, 0], [0, 0.3, 10, 0.3]], float), 8, 0.01, rng,
+                                 first_scan=np.array([0, 0]))
+    labels2 = (segs2[:, 1] > 0.15).astype(np.int64)
+    fused2 = fit_clusters(segs2, labels2, 2)
+    out2 = refine(FusionResult(fused2, np.bincount(labels2), labels2, fused2), segs2, scan2, REFINE)
+    assert len(out2.segments) == 2
+
+
+def test_dropped_segments_on_a_kept_wall_join_it_and_others_stay_dropped():
+    rng = np.random.default_rng(5)
+    wall = np.array([0.0, 0.0, 10.0, 0.0])
+    segs, scan = observe_walls(wall, 10, 0.01, rng)
+    stray = np.array([[3.0, 2.0, 4.0, 2.5]])
+    segs = np.vstack([segs, [[2.0, 0.01, 3.0, 0.01]], stray])
+    scan = np.r_[scan, 50, 51]
+    labels = np.r_[np.zeros(10, np.int64), -1, -1]
+    fused = fit_clusters(segs, labels, 1)
+    out = refine(FusionResult(fused, np.array([10]), labels, fused), segs, scan, REFINE)
+    assert out.labels[10] == 0 and out.labels[11] == -1 and out.support.tolist() == [11]
+
+
+def test_support_length_rule_keeps_a_long_wall_seen_twice():
+    rng = np.random.default_rng(6)
+    walls = np.array([[0, 0, 6, 0], [0, 5, 0.6, 5]], float)          # a 6 m wall and a 0.6 m object
+    segs, scan = observe_walls(walls, 2, 0.005, rng, min_fraction=0.9)
+    paper = fuse("proposed", segs, scan, _config(min_support=4, min_support_length_m=None))
+    ours = fuse("proposed", segs, scan, _config(min_support=4, min_support_length_m=2.0))
+    assert len(paper.segments) == 0
+    assert len(ours.segments) == 1 and _offsets(ours.segments[0], walls[0]).max() < 0.02
+
+
+def test_members_lie_on_their_feature_and_refine_is_order_independent():
+    rng = np.random.default_rng(7)
+    walls = np.array([[0, 0, 10, 0], [10, 0, 10, 8], [0, 0.15, 6, 0.15], [3, 5, 7, 5], [8, 5, 9.5, 5]], float)
+    segs, scan = observe_walls(walls, 8, 0.01, rng, min_fraction=0.5)
+    a = fuse("density", segs, scan, _config())
+    perm = rng.permutation(len(segs))
+    b = fuse("density", segs[perm], scan[perm], _config())
+    assert np.allclose(a.segments, b.segments) and np.array_equal(a.labels[perm], b.labels)
+    kept = a.labels >= 0
+    mids = 0.5 * (segs[kept, :2] + segs[kept, 2:])
+    assert point_segment_distance(mids, a.segments[a.labels[kept]]).max() < 0.07
+
+
+def test_interval_union_and_observed_length():
+    group = np.array([0, 0, 0, 1, 1])
+    lo = np.array([0.0, 1.0, 3.0, 0.0, 0.5])
+    hi = np.array([1.2, 2.0, 4.0, 1.0, 0.8])
+    g, plo, phi, piece = interval_union(group, lo, hi, 2, min_gap=0.5)
+    assert g.tolist() == [0, 0, 1] and plo.tolist() == [0.0, 3.0, 0.0] and phi.tolist() == [2.0, 4.0, 1.0]
+    assert piece.tolist() == [0, 0, 1, 2, 2]
+    fused = np.array([[0, 0, 4, 0], [0, 1, 1, 1]], float)
+    segs = np.c_[lo, np.where(group == 0, 0.0, 1.0), hi, np.where(group == 0, 0.0, 1.0)]
+    assert observed_length(fused, segs, group) == pytest.approx([3.0, 1.0])
+
+
+def test_refine_off_changes_nothing():
+    rng = np.random.default_rng(8)
+    segs, scan = observe_walls(np.array([0.0, 0.0, 10.0, 0.0]), 10, 0.02, rng)
+    result = fuse("proposed", segs, scan)
+    assert refine(result, segs, scan, RefineConfig()) is result
