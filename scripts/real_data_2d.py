@@ -9,7 +9,7 @@ the three methods under three presets, ``configs/indoor_2d.yaml`` (featmap's def
 ``configs/default.yaml`` (the defaults, chosen for KITTI-like drives) and ``configs/paper.yaml`` (the
 paper's method as published; the competing methods without refinement, with the paper's midpoint
 corners), and score every map against the log's own scan points
-(featmap.truth_free: precision, recall, redundancy at 5 cm, count, compression). Prints one table
+(featmap.evaluation.map_metric: precision, recall, redundancy at 5 cm, count, compression). Prints one table
 and, with ``--figures``, writes ``<log>.png``: the proposed method's map under the 2D and paper
 presets over the scan points.
 """
@@ -25,11 +25,11 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from featmap.config import load_config
+from featmap.pipeline.config import load_config
 from featmap.extraction.lines_2d import Lines2DConfig, extract_lines, lines_to_world
 from featmap.fusion import FUSION_METHODS, fuse
 from featmap.io.carmen import read_carmen
-from featmap.truth_free import TruthFreeConfig, truth_free_metrics
+from featmap.evaluation.map_metric import TruthFreeConfig, truth_free_metrics
 
 ROOT = Path(__file__).resolve().parents[1]
 PRESETS = {"featmap 2D": ROOT / "configs" / "indoor_2d.yaml", "default": ROOT / "configs" / "default.yaml",
@@ -71,7 +71,7 @@ def failure_modes(fused: np.ndarray, labels: np.ndarray, segments: np.ndarray, p
     """
     from scipy.spatial import cKDTree
 
-    from featmap.truth_free import SegmentIndex, sample_segments
+    from featmap.evaluation.map_metric import SegmentIndex, sample_segments
 
     samples, owner, weight = sample_segments(fused, 0.02)
     dist, _ = cKDTree(points).query(samples)
@@ -156,7 +156,7 @@ def main() -> None:
         for preset, config in presets.items():
             for method in FUSION_METHODS:
                 start = time.perf_counter()
-                result = fuse(method, segments, scan, config)
+                result = fuse(method, segments, scan, config.fusion)
                 fusion_s = time.perf_counter() - start
                 m = truth_free_metrics(result.segments, points, segments, metric)
                 row = (name, str(len(log)), f"{seconds:.2f}", preset, method, str(len(segments)), str(m.count),

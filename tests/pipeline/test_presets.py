@@ -13,7 +13,7 @@ from featmap.fusion import fuse
 from featmap.io.carmen import carmen_beam_angles
 from featmap.io.run_metrics import read_run_metrics
 from featmap.io.segments_csv import read_fused_csv, read_segments_csv
-from featmap.pipeline import MappingPipeline, SegmentStore, load_config
+from featmap.pipeline import SegmentStore, load_config
 from featmap.pipeline.extract import extract_source
 from featmap.simulation.segments import cast_rays_2d
 
