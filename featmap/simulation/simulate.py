@@ -162,6 +162,22 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
         progress: wraps the frame loop, e.g. ``lambda it, n: rich.progress.track(it, total=n)``.
         scan_observations: also write ``truth/observations.npz``, what each scan saw of each wall.
     """
+    _, final_dir = drive_paths(Path(out_root), SIM_DATE, drive_id)
+    partial = final_dir.parent / f".{final_dir.name}.partial"
+    try:
+        return _simulate_drive(world, out_root, sensor, n_frames, noise_m, dropout, pose_noise, seed, drive_id,
+                               truth_range_m, progress, scan_observations)
+    except BaseException:
+        shutil.rmtree(partial, ignore_errors=True)      # a failed simulation leaves nothing that looks like a drive
+        raise
+
+
+def _simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_frames: int | None = None,
+                    noise_m: float = 0.02, dropout: float = 0.0, pose_noise: tuple[float, float] = (0.0, 0.0),
+                    seed: int = 0, drive_id: str = "0001", truth_range_m: float = 50.0,
+                    progress: Callable[[Iterable, int], Iterable] | None = None,
+                    scan_observations: bool = False) -> SimulatedDrive:
+    """The body of :func:`simulate_drive` (which removes its temporary folder when this fails)."""
     if not (0.0 <= dropout < 1.0):
         raise FeatmapError(f"--dropout {dropout}: must be in [0, 1)")
     if noise_m < 0 or pose_noise[0] < 0 or pose_noise[1] < 0:

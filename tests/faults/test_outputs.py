@@ -87,3 +87,9 @@ def test_two_runs_into_one_folder_at_once(case1_drive, tmp_path):
     assert second.returncode == 2 and "another featmap run is writing to it" in err2
     assert len([line for line in err2.splitlines() if line.startswith("featmap: error")]) == 1
     assert lock.exists() and json.loads((tmp_path / "r" / "metrics.json").read_text())["scans"]["processed"] == 40
+
+
+def test_a_simulation_that_fails_midway_leaves_no_partial_drive(tmp_path, small_disk):
+    disk = small_disk("2m")
+    one_line_error(cli("simulate", "--world", "prescan_case1", "--out", disk, "--frames", "40"), "No space left on device")
+    assert not list(disk.rglob("*.partial")) and not list(disk.rglob("*_sync"))
