@@ -82,6 +82,32 @@ class ScanSource(Protocol):
         ...
 
 
+class FrameSource:
+    """A base for scan sources: ``frames`` selects the scans; a subclass implements ``scan(frame)`` and
+    ``pose(frame)`` for one frame number, and gets the sequence and ``poses()`` from here."""
+
+    frames: list[int]
+
+    def scan(self, frame: int) -> Scan:
+        raise NotImplementedError
+
+    def pose(self, frame: int) -> np.ndarray:
+        """(4, 4) ``T_world_sensor`` of ``frame`` (without reading its scan)."""
+        raise NotImplementedError
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, i: int) -> Scan:
+        if not -len(self) <= i < len(self):
+            raise IndexError(i)
+        return self.scan(self.frames[i])
+
+    def poses(self) -> np.ndarray:
+        """(F, 4, 4) ``T_world_sensor`` of the selected frames, without reading any scan."""
+        return np.stack([self.pose(f) for f in self.frames]) if self.frames else np.zeros((0, 4, 4))
+
+
 @dataclass(frozen=True)
 class SourceSpec:
     """How to open a source again (e.g. in a batch task): its format, location and options."""

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from featmap.datasets.base import Scan, SourceNotes, select_frames
+from featmap.datasets.base import FrameSource, Scan, SourceNotes, select_frames
 from featmap.io.carmen import read_carmen
 
 SUFFIXES = (".gz", ".bz2", ".log", ".clf")
@@ -35,7 +35,7 @@ def log_name(path: str | Path) -> str:
     return name
 
 
-class CarmenSource:
+class CarmenSource(FrameSource):
     """A CARMEN log as a sequence of :class:`Scan` ((N, 2) points, laser frame, beam order).
 
     Args:
@@ -55,19 +55,12 @@ class CarmenSource:
         self.notes = SourceNotes()
         self._t0 = float(self.log.timestamp[0]) if len(self.log) else 0.0
 
-    def __len__(self) -> int:
-        return len(self.frames)
-
-    def __getitem__(self, i: int) -> Scan:
-        if not -len(self) <= i < len(self):
-            raise IndexError(i)
-        frame = self.frames[i]
-        return Scan(index=frame, points=self.log.points(frame), T_world_sensor=pose_matrix(self.log.pose[frame]),
+    def scan(self, frame: int) -> Scan:
+        return Scan(index=frame, points=self.log.points(frame), T_world_sensor=self.pose(frame),
                     timestamp=float(self.log.timestamp[frame]) - self._t0)
 
-    def poses(self) -> np.ndarray:
-        """(F, 4, 4) ``T_world_sensor`` of the selected scans."""
-        return np.stack([pose_matrix(self.log.pose[f]) for f in self.frames]) if self.frames else np.zeros((0, 4, 4))
+    def pose(self, frame: int) -> np.ndarray:
+        return pose_matrix(self.log.pose[frame])
 
 
 def open_log(location: str | Path, frames: str | None = None, skip_bad_scans: bool = False,

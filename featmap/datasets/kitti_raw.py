@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from featmap.datasets.base import Scan, SourceNotes, select_frames
+from featmap.datasets.base import FrameSource, Scan, SourceNotes, select_frames
 from featmap.errors import DatasetError
 from featmap.geo import GeoFrame
 from featmap.io.kitti_raw import (CALIB_FILES, drive_paths, read_calib_file, read_oxts_packet, read_rigid_calib,
@@ -50,7 +50,7 @@ class DriveCheck:
     poor_gps: list[int] = field(default_factory=list)
 
 
-class KittiRawDataset:
+class KittiRawDataset(FrameSource):
     """A KITTI raw drive as a sequence of :class:`Scan` (``len(ds)``, ``ds[i]``).
 
     Args:
@@ -156,23 +156,15 @@ class KittiRawDataset:
                 poor.append(k)
         return DriveCheck(len(scans), bad_scans, bad_oxts, poor)
 
-    # -- sequence -------------------------------------------------------------------------------------
-    def __len__(self) -> int:
-        return len(self.frames)
-
-    def __getitem__(self, i: int) -> Scan:
-        if not -len(self) <= i < len(self):
-            raise IndexError(i)
-        frame = self.frames[i]
-        pos = self._position[frame]
-        points = read_velo_bin(self._raw.velo_files[pos])
-        T_w_velo = np.asarray(self._raw.oxts[pos].T_w_imu) @ self._T_imu_velo
+    # -- frames ---------------------------------------------------------------------------------------
+    def scan(self, frame: int) -> Scan:
+        points = read_velo_bin(self._raw.velo_files[self._position[frame]])
         stamp = float(self._stamps[frame]) if self._stamps is not None and frame < len(self._stamps) else 0.1 * frame
-        return Scan(index=frame, points=points, T_world_sensor=T_w_velo, timestamp=stamp)
+        return Scan(index=frame, points=points, T_world_sensor=self.pose(frame), timestamp=stamp)
 
-    def poses(self) -> np.ndarray:
-        """(F, 4, 4) ``T_w_velo`` of the selected frames (no scan is read)."""
-        return np.stack([np.asarray(self._raw.oxts[self._position[f]].T_w_imu) @ self._T_imu_velo for f in self.frames])
+    def pose(self, frame: int) -> np.ndarray:
+        """``T_w_velo = T_w_imu @ inv(T_velo_imu)`` of ``frame`` (pykitti's poses)."""
+        return np.asarray(self._raw.oxts[self._position[frame]].T_w_imu) @ self._T_imu_velo
 
 
 def open_drive_folder(location: str | Path, frames: str | None = None, skip_bad_scans: bool = False,
