@@ -193,13 +193,15 @@ def cluster_segments(n: int, i: np.ndarray, j: np.ndarray, scan: np.ndarray,
     return relabel_by_first_appearance(groups, scan, segments, order_key=first_link)
 
 
-def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig()) -> FusionResult:
+def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig(),
+                  progress: Callable[[int, int], None] | None = None) -> FusionResult:
     """Fuse world-frame segments with the paper's method.
 
     Args:
         segments: (N, 4) ``x1, y1, x2, y2`` in the world frame, metres.
         scan: (N,) index of the scan each segment was extracted from.
         config: thresholds delta, gamma, eta, the support filter and fit weighting.
+        progress: optional ``progress(done, total)`` callback (scans linked so far, all scans).
     Returns:
         FusionResult with (M, 4) fused segments (before corner optimisation; the registry applies it).
     """
@@ -210,7 +212,7 @@ def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig()) -> 
     if len(seg) == 0:
         empty = np.zeros((0, 4))
         return FusionResult(empty, np.zeros(0, np.int64), labels, empty, 0, int((~valid).sum()))
-    i, j = linked_pairs(seg, sc, config)
+    i, j = linked_pairs(seg, sc, config, progress)
     groups, sizes = cluster_segments(len(seg), i, j, sc, seg)
     kept = sizes >= config.min_support
     new_id = np.full(len(sizes), -1, dtype=np.int64)
@@ -222,4 +224,4 @@ def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig()) -> 
     support = sizes[kept].astype(np.int64)
     return FusionResult(segments=fused, support=support, labels=labels, segments_before_corners=fused,
                         clusters_dropped=int((~kept).sum()), skipped_zero_length=int((~valid).sum()),
-                        extras={"linked_pairs": int(len(i))})
+                        extras={"links_kept": int(len(i))})
