@@ -42,7 +42,7 @@ def spatial_neighbours(segments: np.ndarray, direction: np.ndarray, config: Dens
     return i[ok], j[ok]
 
 
-def fuse_density(segments, scan, config: DensityConfig = DensityConfig()) -> FusionResult:
+def fuse_density(segments, scan, config: DensityConfig = DensityConfig(), progress=None) -> FusionResult:
     """Fuse (N, 4) world-frame segments; ``scan`` (N,) is accepted for a common signature but unused."""
     from sklearn.cluster import DBSCAN
 

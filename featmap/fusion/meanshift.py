@@ -20,7 +20,7 @@ from featmap.fusion.base import (FusionResult, cluster_orientations, finish_clus
 from featmap.geometry import segment_midpoints, segment_orientations
 
 
-def fuse_meanshift(segments, scan, config: MeanShiftConfig = MeanShiftConfig()) -> FusionResult:
+def fuse_meanshift(segments, scan, config: MeanShiftConfig = MeanShiftConfig(), progress=None) -> FusionResult:
     """Fuse (N, 4) world-frame segments; ``scan`` (N,) is accepted for a common signature but unused."""
     segments, scan, valid = validate_input(segments, scan)
     seg = segments[valid]
