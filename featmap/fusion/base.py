@@ -210,7 +210,12 @@ def _bin_seeds(points: np.ndarray, bin_size: float) -> np.ndarray:
     ``bin_size``; the points themselves when every point has a bin of its own.
     """
     binned = np.round(points / bin_size)
-    _, first = np.unique(binned, axis=0, return_index=True)
+    cells = binned.astype(np.int64)
+    low, span = cells.min(axis=0), cells.max(axis=0) - cells.min(axis=0) + 1
+    if np.all(np.isfinite(binned)) and float(np.prod(span.astype(float))) < 2.0**62:
+        _, first = np.unique(np.ravel_multi_index((cells - low).T, tuple(span)), return_index=True)
+    else:
+        _, first = np.unique(binned, axis=0, return_index=True)
     if len(first) == len(points):
         return points
     return binned[np.sort(first)].astype(np.float32) * bin_size

@@ -400,3 +400,139 @@ def _grow(buffer):
     out = np.empty(2 * len(buffer), buffer.dtype)
     out[:len(buffer)] = buffer
     return out
+
+
+# --- connected components of the density method's neighbour graph --------------------------------------
+
+@njit(cache=True)
+def band_components_kernel(order, umin, umax, v, entry_start, entry_cells, cell_count, lateral_eps, gap, slack,
+                           cell_key_of, table_keys, table_cell, mask, u_origin, u_size, v_origin, v_size, nu, nv):
+    """Union-find components of "``|v_i - v_j| <= lateral_eps`` and the u-intervals leave a gap ``<= gap``".
+
+    Segments are taken in ``order``; each is compared with the groups of earlier segments in the cells its
+    reach covers, then inserted into every cell its interval ``[umin, umax]`` covers (entries
+    ``entry_start[i] .. entry_start[i + 1]`` of ``entry_cells``). Cells carry the orientation cluster in
+    their key, so clusters never mix. Same group skipping as :func:`link_forest_kernel`. Returns the
+    union-find parent array (N,) (roots label the components) and statistics.
+    """
+    n = len(umin)
+    n_entries = entry_start[n]
+    parent = np.arange(n)
+    comp_size = np.ones(n, np.int64)
+    cell_head = np.full(cell_count, -1, np.int64)
+    group_next = np.full(n_entries, -1, np.int64)
+    group_root = np.full(n_entries, -1, np.int64)
+    group_head = np.full(n_entries, -1, np.int64)
+    group_tail = np.full(n_entries, -1, np.int64)
+    group_box = np.zeros((n_entries, 4))          # min umin, max umax, min v, max v
+    entry_next = np.full(n_entries, -1, np.int64)
+    entry_seg = np.full(n_entries, -1, np.int64)
+    n_groups = 0
+    stats = np.zeros(3, np.int64)
+    for k in range(n):
+        i = order[k]
+        key_base = cell_key_of[i]               # orientation cluster * nu * nv
+        lo_u, hi_u = umin[i] - gap - slack, umax[i] + gap + slack
+        lo_v, hi_v = v[i] - lateral_eps - slack, v[i] + lateral_eps + slack
+        cu0 = max(int(math.floor((lo_u - u_origin) / u_size)), 0)
+        cu1 = min(int(math.floor((hi_u - u_origin) / u_size)), nu - 1)
+        cv0 = max(int(math.floor((lo_v - v_origin) / v_size)), 0)
+        cv1 = min(int(math.floor((hi_v - v_origin) / v_size)), nv - 1)
+        for cu in range(cu0, cu1 + 1):
+            for cv in range(cv0, cv1 + 1):
+                cell = _lookup(table_keys, table_cell, mask, key_base + cu * nv + cv)
+                if cell < 0:
+                    continue
+                mine = -1
+                prev = -1
+                g = cell_head[cell]
+                while g >= 0:
+                    nxt = group_next[g]
+                    rg = _find(parent, group_root[g])
+                    group_root[g] = rg
+                    ri = _find(parent, i)
+                    if rg == ri:
+                        if mine < 0:
+                            mine = g
+                            prev = g
+                        else:
+                            _merge_band_groups(mine, g, group_head, group_tail, group_box, entry_next)
+                            group_next[prev] = nxt
+                        g = nxt
+                        continue
+                    stats[0] += 1
+                    if (group_box[g, 0] > hi_u or group_box[g, 1] < lo_u
+                            or group_box[g, 2] > hi_v or group_box[g, 3] < lo_v):
+                        prev = g
+                        g = nxt
+                        continue
+                    linked = False
+                    e = group_head[g]
+                    while e >= 0:
+                        j = entry_seg[e]
+                        stats[1] += 1
+                        if (abs(v[i] - v[j]) <= lateral_eps
+                                and max(umin[i], umin[j]) - min(umax[i], umax[j]) <= gap):
+                            linked = True
+                            break
+                        e = entry_next[e]
+                    if linked:
+                        stats[2] += 1
+                        root = _union(parent, comp_size, rg, ri)
+                        group_root[g] = root
+                        if mine < 0:
+                            mine = g
+                            prev = g
+                        else:
+                            _merge_band_groups(mine, g, group_head, group_tail, group_box, entry_next)
+                            group_next[prev] = nxt
+                    else:
+                        prev = g
+                    g = nxt
+        # insert i into every cell its interval covers
+        ri = _find(parent, i)
+        for e in range(entry_start[i], entry_start[i + 1]):
+            cell = entry_cells[e]
+            entry_seg[e] = i
+            target = -1
+            g = cell_head[cell]
+            while g >= 0:
+                rg = _find(parent, group_root[g])
+                group_root[g] = rg
+                if rg == ri:
+                    target = g
+                    break
+                g = group_next[g]
+            if target < 0:
+                target = n_groups
+                n_groups += 1
+                group_root[target] = ri
+                group_next[target] = cell_head[cell]
+                cell_head[cell] = target
+                group_head[target] = e
+                group_tail[target] = e
+                group_box[target, 0] = umin[i]
+                group_box[target, 1] = umax[i]
+                group_box[target, 2] = v[i]
+                group_box[target, 3] = v[i]
+            else:
+                entry_next[e] = group_head[target]
+                group_head[target] = e
+                group_box[target, 0] = min(group_box[target, 0], umin[i])
+                group_box[target, 1] = max(group_box[target, 1], umax[i])
+                group_box[target, 2] = min(group_box[target, 2], v[i])
+                group_box[target, 3] = max(group_box[target, 3], v[i])
+    for x in range(n):
+        parent[x] = _find(parent, x)
+    return parent, stats
+
+
+@njit(cache=True)
+def _merge_band_groups(a, b, group_head, group_tail, group_box, entry_next):
+    entry_next[group_tail[a]] = group_head[b]
+    group_tail[a] = group_tail[b]
+    group_head[b] = -1
+    group_box[a, 0] = min(group_box[a, 0], group_box[b, 0])
+    group_box[a, 1] = max(group_box[a, 1], group_box[b, 1])
+    group_box[a, 2] = min(group_box[a, 2], group_box[b, 2])
+    group_box[a, 3] = max(group_box[a, 3], group_box[b, 3])
