@@ -45,3 +45,17 @@ def test_every_method_has_a_config_section():
     cfg = FeatmapConfig()
     for name, method in FUSION_METHODS.items():
         assert method.config_of(cfg) is getattr(cfg.fusion, name)
+
+
+@pytest.mark.parametrize("name", ["proposed", "meanshift", "density"])
+def test_every_method_reports_progress_up_to_its_total_and_the_same_result(name):
+    from featmap.fusion.registry import prepare_method
+    from featmap.synthetic import city_walls, observe_revisits
+
+    prepare_method(name)
+    rng = np.random.default_rng(1)
+    segments, scan = observe_revisits(city_walls(6, rng), 3, 8, rng)
+    calls = []
+    with_progress = fuse(name, segments, scan, progress=lambda done, total: calls.append((done, total)))
+    assert calls and calls[-1][0] == calls[-1][1] > 0
+    assert np.array_equal(with_progress.labels, fuse(name, segments, scan).labels)
