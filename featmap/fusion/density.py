@@ -71,8 +71,9 @@ def neighbour_components(umin: np.ndarray, umax: np.ndarray, v: np.ndarray, orie
         return np.zeros(0, np.int64)
     eps, gap = float(config.lateral_eps_m), float(config.longitudinal_gap_m)
     slack = 1e-9 * (1.0 + float(max(np.abs(umin).max(), np.abs(umax).max(), np.abs(v).max())))
-    u_size = max(gap, float(np.median(umax - umin)), 1e-3)
-    v_size = eps
+    # at most 2^24 cells per axis, so that (cluster, u cell, v cell) keys fit in an int64
+    u_size = max(gap, float(np.median(umax - umin)), float(umax.max() - umin.min()) / 2**24, 1e-3)
+    v_size = max(eps, float(v.max() - v.min()) / 2**24)
     u_origin, v_origin = float(umin.min()) - u_size, float(v.min()) - v_size
     nu = int(np.floor((umax.max() - u_origin) / u_size)) + 2
     nv = int(np.floor((v.max() - v_origin) / v_size)) + 2
