@@ -223,7 +223,7 @@ def _box_segment_distance(x0, x1, y0, y1, ax, ay, bx, by):
 
 @njit(cache=True)
 def _union(parent, size, a, b):
-    """Join the components of a and b (roots); return the new root."""
+    """Join the components of roots a and b (union by size); return the new root."""
     if size[a] < size[b]:
         a, b = b, a
     parent[b] = a
@@ -232,14 +232,16 @@ def _union(parent, size, a, b):
 
 
 @njit(cache=True)
-def link_forest_kernel(seg, order, scan_start, scan_from, scan_to, cell_of, cell_x, cell_y,
+def link_forest_kernel(seg, order, scan_start, scan_from, scan_to, cell_of,
                        table_keys, table_cell, mask, ny, x_origin, y_origin, cell_size,
                        cos_delta, gamma, eta, dist_band, check_angle, check_overlap,
                        parent, comp_size, cell_head, group_next, group_root, group_head, group_tail, group_box, seg_next,
                        n_groups, links_i, links_j, n_links, undecided_i, undecided_j, n_undecided, stats):
     """Process scans ``scan_from .. scan_to - 1`` (indices into ``scan_start``); state arrays are updated in place.
 
-    ``order`` (N,) lists segment indices scan by scan; ``scan_start`` (S + 1,) the start of each scan in it.
+    ``order`` (N,) lists segment indices scan by scan; ``scan_start`` (S + 1,) the start of each scan in it;
+    ``cell_of`` (N,) the grid cell of each segment's centre (an index into the cell hash table's values).
+    ``stats`` (4,) counts cells visited, groups of other clusters met, groups tested and pairs evaluated.
     Returns (n_groups, n_links, n_undecided, undecided_i, undecided_j) (the undecided buffers may grow).
     """
     reach = eta + dist_band

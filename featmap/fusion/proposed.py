@@ -155,7 +155,7 @@ def linked_pairs(segments: np.ndarray, scan: np.ndarray, config: ProposedConfig,
     bounds = np.linspace(0, n_scans, steps + 1).round().astype(int)
     for a, b in zip(bounds[:-1], bounds[1:]):
         n_groups, n_links, n_undecided, undecided_i, undecided_j = lf.link_forest_kernel(
-            segments, order, scan_start, a, b, cell_of.reshape(-1), cell_xy[:, 0], cell_xy[:, 1],
+            segments, order, scan_start, a, b, cell_of.reshape(-1),
             table_keys, table_cell, mask, ny, float(origin[0]), float(origin[1]), cell_size,
             cos_delta, float(config.gamma), eta, dist_band, config.delta_deg < 90.0, config.gamma > 0.0,
             state["parent"], state["comp_size"], state["cell_head"], state["group_next"], state["group_root"],
