@@ -100,8 +100,13 @@ def observe_revisits(walls: np.ndarray, passes: int, scans_per_wall: int, rng: n
         return mid + np.stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1]], axis=1) + shift[pass_idx, wall_idx]
 
     segments = np.concatenate([moved(a), moved(b)], axis=1) + rng.normal(0.0, noise_m, (len(wall_idx), 4))
-    n_clutter = int(round(clutter_fraction * len(segments) / (1.0 - clutter_fraction))) if n_walls else 0
-    if n_clutter:
+    n_clutter_segments = int(round(clutter_fraction * len(segments) / (1.0 - clutter_fraction))) if n_walls else 0
+    if n_clutter_segments:
+        views = rng.integers(1, 4, n_clutter_segments)          # each piece is seen in 1-3 scans
+        seen = np.cumsum(views)
+        n_clutter = int(np.searchsorted(seen, n_clutter_segments)) + 1
+        views = views[:n_clutter]
+        views[-1] -= seen[n_clutter - 1] - n_clutter_segments
         host = rng.integers(0, n_walls, n_clutter)
         d = walls[host, 2:] - walls[host, :2]
         u = d / np.hypot(d[:, 0], d[:, 1])[:, None]
@@ -111,7 +116,6 @@ def observe_revisits(walls: np.ndarray, passes: int, scans_per_wall: int, rng: n
         angle = rng.uniform(0, np.pi, n_clutter)
         half = 0.5 * rng.uniform(0.5, 4.0, n_clutter)
         e = np.stack([np.cos(angle), np.sin(angle)], axis=1) * half[:, None]
-        views = rng.integers(1, 4, n_clutter)
         rep = np.repeat(np.arange(n_clutter), views)
         clutter = np.concatenate([centre[rep] - e[rep], centre[rep] + e[rep]], axis=1)
         clutter += rng.normal(0.0, noise_m, clutter.shape)
