@@ -5,7 +5,8 @@
 """
 
 from featmap.fusion.base import FusionMethod, FusionResult
-from featmap.fusion.registry import FUSION_METHODS, METHODS, FusionConfig, fuse, get_method, resolve_methods
+from featmap.fusion.registry import (FUSION_METHODS, METHODS, FusionConfig, fuse, get_method, prepare_method,
+                                    resolve_methods)
 
 __all__ = ["FUSION_METHODS", "METHODS", "FusionConfig", "FusionMethod", "FusionResult", "fuse", "get_method",
-           "resolve_methods"]
+           "prepare_method", "resolve_methods"]

@@ -12,6 +12,7 @@ A new method is one module (its function, its config section and a ``METHOD`` en
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Callable
 
 import numpy as np
 from pydantic import create_model
@@ -75,20 +76,27 @@ def working_origin(segments: np.ndarray) -> np.ndarray:
     return np.round(np.median(mid, axis=0), -3)
 
 
-def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig()) -> FusionResult:  # type: ignore[valid-type]
+def prepare_method(name: str) -> None:
+    """Import method ``name``'s libraries and load its compiled code (a one-off cost per process)."""
+    get_method(name).prepare()
+
+
+def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig(),  # type: ignore[valid-type]
+         progress: Callable[[int, int], None] | None = None) -> FusionResult:
     """Run method ``name`` with its section of ``config`` (the ``fusion:`` section), then the shared
     refinement (``fusion.refine``: consistent clusters, gap splitting) and corner optimisation.
 
     Args:
         segments: (N, 4) world-frame segments ``x1, y1, x2, y2`` (metres).
         scan: (N,) scan index of each segment.
+        progress: called as ``progress(done, total)`` now and then by long fusions (the method's own units).
     """
     method = get_method(name)
     segments = as_segments(segments)
     origin = working_origin(segments[np.isfinite(segments).all(axis=1)])
     shift = np.tile(origin, 2)
     section = getattr(config, name)
-    result = method.fuse(segments - shift, scan, section)
+    result = method.fuse(segments - shift, scan, section, progress=progress)
     min_support, min_length = method.support_rule(section) if method.support_rule else (1, None)
     result = refine(result, segments - shift, scan, config.refine, min_support, min_length)
     before = result.segments_before_corners

@@ -6,13 +6,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
-from featmap.fusion import FusionConfig, FusionResult, fuse
+from featmap.fusion import FusionConfig, FusionResult, fuse, prepare_method
 from featmap.io.segments_csv import SegmentTable, write_fused_csv
 from featmap.reporting import NullReporter, Reporter
 
-_WARM_UP_SEGMENTS = np.array([[0.0, 0.0, 10.0, 0.0], [0.0, 0.05, 10.0, 0.05], [0.0, 10.0, 0.0, 20.0]])
+PROGRESS_MIN_SEGMENTS = 200_000
+"""Fusions of at least this many segments (a few seconds and more) show a progress bar of their own."""
 
 
 @dataclass(frozen=True)
@@ -24,12 +23,12 @@ class MethodRun:
     seconds: float
 
 
-def warm_up(methods: list[str], config: FusionConfig) -> float:  # type: ignore[valid-type]
-    """Run every method once on three segments so that library imports (scikit-learn, ...) and first
-    calls are not charged to the first method's fusion time. Returns the seconds it took."""
+def warm_up(methods: list[str]) -> float:
+    """Load every method's libraries (scikit-learn) and compiled code (numba) so that this one-off cost is
+    not charged to the first method's fusion time. Returns the seconds it took."""
     start = time.perf_counter()
     for name in methods:
-        fuse(name, _WARM_UP_SEGMENTS, np.arange(len(_WARM_UP_SEGMENTS)), config)
+        prepare_method(name)
     return time.perf_counter() - start
 
 
@@ -37,12 +36,26 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
                  reporter: Reporter = NullReporter()) -> list[MethodRun]:
     """Fuse ``table`` with every method in ``methods`` (corner optimisation included), timing each."""
     runs = []
-    with reporter.progress("fusing", len(methods)) as advance:
+    if len(table) < PROGRESS_MIN_SEGMENTS:
+        with reporter.progress("fusing", len(methods)) as advance:
+            for name in methods:
+                start = time.perf_counter()
+                result = fuse(name, table.segments, table.scan, config)
+                runs.append(MethodRun(name, result, time.perf_counter() - start))
+                advance(1)
+    else:
         for name in methods:
-            start = time.perf_counter()
-            result = fuse(name, table.segments, table.scan, config)
-            runs.append(MethodRun(name, result, time.perf_counter() - start))
-            advance(1)
+            with reporter.progress(f"fusing {len(table):,} segments ({name}), %", 100) as advance:
+                shown = [0]
+
+                def progress(done: int, total: int) -> None:      # the method's own units, shown in per cent
+                    percent = int(100 * done / max(total, 1))
+                    advance(percent - shown[0])
+                    shown[0] = percent
+
+                start = time.perf_counter()
+                result = fuse(name, table.segments, table.scan, config, progress)
+                runs.append(MethodRun(name, result, time.perf_counter() - start))
     for run in runs:
         if len(run.result) == 0 and len(table) > 0:
             reporter.warning(f"{run.name}: no feature from {len(table)} segments ({run.result.clusters_dropped} "
@@ -63,7 +76,7 @@ def fuse_and_write(table: SegmentTable, methods: list[str], config, out: str | P
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise RunFolderError(f"--out {out}: exists and is not a folder")
-    import_seconds = warm_up(methods, config.fusion)
+    import_seconds = warm_up(methods)
     runs = fuse_methods(table, methods, config.fusion, reporter)
     try:
         for run in runs:
@@ -80,6 +93,6 @@ def fuse_and_write(table: SegmentTable, methods: list[str], config, out: str | P
     if table.skipped_duplicates:
         reporter.warning(f"skipped {table.skipped_duplicates} duplicate row(s) of the input (same scan and endpoints "
                          "as an earlier row; they would count twice in a feature's support)")
-    reporter.info(f"library imports and warm-up took {import_seconds:.2f} s (not in the seconds above)")
+    reporter.info(f"loading the methods' libraries and compiled code took {import_seconds:.2f} s (not in the seconds above)")
     reporter.info(f"wrote {', '.join(f'fused_{r.name}.csv' for r in runs)} and config.yaml to {out}")
     return runs

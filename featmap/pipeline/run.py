@@ -91,7 +91,7 @@ class MappingPipeline:
             for message in extraction.discarded:
                 self.reporter.warning(f"discarded a corrupt cache entry and extracted again: {message}")
             table = extraction.world_table()
-            import_seconds = warm_up(self.methods, self.config.fusion)
+            import_seconds = warm_up(self.methods)
             runs = fuse_methods(table, self.methods, self.config.fusion, self.reporter)
             t_eval = time.perf_counter()
             context = EvaluationContext(source.location, extraction.frames, source.geo_origin, self.config.evaluation,
@@ -116,7 +116,7 @@ class MappingPipeline:
                 segments=len(table),
                 timings_s={"extraction": round(extraction.seconds, 3),
                            "extraction_per_scan_median": _median(extraction.scan_seconds),
-                           "imports": round(import_seconds, 3),
+                           "fusion_library_loading": round(import_seconds, 3),
                            **{f"fusion_{r.name}": round(r.seconds, 4) for r in runs},
                            "evaluation": round(eval_seconds, 3)},
                 methods={r.name: MethodRecord(count=len(r.result), clusters_dropped=r.result.clusters_dropped,

@@ -59,3 +59,17 @@ def test_every_method_takes_its_own_section(name):
     loose = FusionConfig.model_validate({name: {key: 10.0, **({"min_support": 1} if name == "proposed" else {})}})
     assert len(fuse(name, segs, scan, tight)) == 2
     assert len(fuse(name, segs, scan, loose)) == 1
+
+
+@pytest.mark.parametrize("name", ["proposed", "meanshift", "density"])
+def test_every_method_reports_progress_up_to_its_total_and_the_same_result(name):
+    from featmap.fusion.registry import prepare_method
+    from featmap.simulation.segments import city_walls, observe_revisits
+
+    prepare_method(name)
+    rng = np.random.default_rng(1)
+    segments, scan = observe_revisits(city_walls(6, rng), 3, 8, rng)
+    calls = []
+    with_progress = fuse(name, segments, scan, progress=lambda done, total: calls.append((done, total)))
+    assert calls and calls[-1][0] == calls[-1][1] > 0
+    assert np.array_equal(with_progress.labels, fuse(name, segments, scan).labels)

@@ -35,7 +35,7 @@ def test_run_writes_the_output_contract_and_scores_against_truth(run_case1, tmp_
     saved = read_run_metrics(out / "metrics.json")
     assert saved == result.metrics
     assert saved.scans.processed == 40 and saved.segments > 40
-    assert set(saved.timings_s) >= {"extraction", "imports", "fusion_proposed", "total"}
+    assert set(saved.timings_s) >= {"extraction", "fusion_library_loading", "fusion_proposed", "total"}
     assert saved.primary == "truth" and saved.references["truth"].endswith("truth")
     proposed = saved.primary_scores("proposed")
     # 32 m of driving along the south wall a-b of the one building: that wall, once, on the truth
