@@ -16,6 +16,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from featmap.errors import ConfigError
+from featmap.extraction.vertical_structure import VerticalStructureConfig
 
 
 class _Section(BaseModel):
@@ -23,8 +24,11 @@ class _Section(BaseModel):
 
 
 class ExtractionConfig(_Section):
-    """Per-scan vertical-plane extraction (velodyne frame, metres)."""
+    """Per-scan wall extraction (velodyne frame, metres); the keys after vertical_structure are ransac_planes'."""
 
+    method: Literal["vertical_structure", "ransac_planes"] = Field(
+        "vertical_structure", description="vertical_structure = tall thin lines of the top view; ransac_planes = sequential RANSAC planes (the keys below)")
+    vertical_structure: VerticalStructureConfig = VerticalStructureConfig()
     min_range_m: float = Field(2.5, ge=0, description="drop returns closer than this (vehicle body)")
     max_range_m: float = Field(50.0, gt=0, description="drop returns farther than this (sparse, noisy)")
     z_min_m: float = Field(-3.0, description="drop returns below this height in the velodyne frame")

@@ -21,41 +21,11 @@ Everything is seeded (``seed``), so the same scan gives the same segments.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from featmap.config import ExtractionConfig
+from featmap.extraction.segments import ScanSegments, StageClock, segments_to_world  # noqa: F401 (re-exported)
 from featmap.geometry import fit_line_tls
-
-
-@dataclass(frozen=True)
-class ScanSegments:
-    """Wall segments of one scan, in the velodyne frame.
-
-    Attributes:
-        segments: (K, 4) ``x1, y1, x2, y2`` in metres (velodyne frame, projected to its x-y plane).
-        z_mean: (K,) mean height of each piece's points (velodyne frame): where to lift the endpoints
-            before moving them to the world frame.
-        n_points: (K,) points in each piece (after down-sampling).
-        z_min, z_max: (K,) vertical extent of each piece (velodyne frame).
-        rms: (K,) root-mean-square distance of the piece's points to its fitted line (metres).
-    """
-
-    segments: np.ndarray
-    z_mean: np.ndarray
-    n_points: np.ndarray
-    z_min: np.ndarray
-    z_max: np.ndarray
-    rms: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.segments)
-
-    @staticmethod
-    def empty() -> "ScanSegments":
-        z = np.zeros(0)
-        return ScanSegments(np.zeros((0, 4)), z, np.zeros(0, np.int64), z, z, z)
 
 
 def crop(points: np.ndarray, config: ExtractionConfig) -> np.ndarray:
@@ -124,7 +94,7 @@ def split_pieces(t: np.ndarray, max_gap: float) -> list[np.ndarray]:
 
 def extract_segments(points: np.ndarray, config: ExtractionConfig = ExtractionConfig(),
                      timings: dict[str, float] | None = None) -> ScanSegments:
-    """Wall segments of one scan.
+    """Wall segments of one scan by sequential RANSAC (``extraction.method: ransac_planes``).
 
     Args:
         points: (N, 3) or (N, 4) velodyne-frame points (x forward, y left, z up; metres).
@@ -148,7 +118,7 @@ def extract_segments(points: np.ndarray, config: ExtractionConfig = ExtractionCo
 def _extract(points: np.ndarray, config: ExtractionConfig, timings: dict[str, float] | None) -> ScanSegments:
     import open3d as o3d
 
-    clock = _StageClock(timings)
+    clock = StageClock(timings)
     o3d.utility.random.seed(int(config.seed))
     xyz = crop(points, config)
     clock.lap("crop")
@@ -201,35 +171,3 @@ def _extract(points: np.ndarray, config: ExtractionConfig, timings: dict[str, fl
     arr = np.asarray(rows, float)
     return ScanSegments(segments=arr[:, :4], z_mean=arr[:, 4], n_points=arr[:, 5].astype(np.int64),
                         z_min=arr[:, 6], z_max=arr[:, 7], rms=arr[:, 8])
-
-
-class _StageClock:
-    """Adds the seconds since the previous lap to ``timings[stage]`` (no-op when timings is None)."""
-
-    def __init__(self, timings: dict[str, float] | None):
-        import time
-
-        self._now = time.perf_counter
-        self.timings = timings
-        self.last = self._now()
-
-    def lap(self, stage: str) -> None:
-        if self.timings is not None:
-            now = self._now()
-            self.timings[stage] = self.timings.get(stage, 0.0) + now - self.last
-            self.last = now
-
-
-def segments_to_world(scan_segments: ScanSegments, T_w_velo: np.ndarray) -> np.ndarray:
-    """Move a scan's segments to the world frame.
-
-    Each endpoint is lifted to its piece's mean height, transformed by ``T_w_velo`` (4, 4) and
-    projected to the world's x-y plane. Returns (K, 4) world-frame ``x1, y1, x2, y2``.
-    """
-    seg = scan_segments.segments
-    if len(seg) == 0:
-        return np.zeros((0, 4))
-    R, t = T_w_velo[:3, :3], T_w_velo[:3, 3]
-    p1 = np.column_stack([seg[:, 0], seg[:, 1], scan_segments.z_mean]) @ R.T + t
-    p2 = np.column_stack([seg[:, 2], seg[:, 3], scan_segments.z_mean]) @ R.T + t
-    return np.column_stack([p1[:, :2], p2[:, :2]])
