@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
 import pytest
 
-SHARED = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+SHARED = Path(os.environ.get("FEATMAP_SHARED", Path(__file__).resolve().parents[1] / ".." / "shared")) / "data"
 
 
 @pytest.fixture(scope="session")

@@ -36,6 +36,8 @@ Numpy in, numpy out; the same scan always gives the same segments (no random sam
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -61,6 +63,7 @@ class VerticalStructureConfig(BaseModel):
     ground_margin_m: float = Field(0.25, ge=0, description="returns this close above the local ground are ground")
     cell_m: float = Field(0.15, gt=0, description="top-view cell of the structure grid")
     cell_min_top_m: float = Field(1.2, ge=0, description="a cell takes part when its highest return is this far above the ground")
+    line_min_height_m: float = Field(1.0, ge=0, description="only returns this high above the ground place the lines (a car or bush in front of a wall does not pull it)")
     link_radius_m: float = Field(0.45, gt=0, description="cells this close are neighbours ...")
     link_azimuth_deg: float = Field(0.6, gt=0, description="... and so are cells seen this close in azimuth (a few of the sensor's azimuth steps) ...")
     link_radial_m: float = Field(2.0, gt=0, description="... that are this close in range (far walls, walls seen at grazing incidence)")
@@ -74,18 +77,30 @@ class VerticalStructureConfig(BaseModel):
     merge_offset_m: float = Field(0.12, ge=0, description="... and whose midpoints lie this close to the other's line")
     min_points: int = Field(20, ge=2, description="a wall has at least this many returns")
     min_length_m: float = Field(1.0, ge=0, description="a wall is at least this long")
-    max_rms_m: float = Field(0.08, gt=0, description="a wall's returns spread at most this much about its line (rms)")
+    max_rms_m: float = Field(0.08, gt=0, description="a wall's returns spread at most this much about its line (rms) ...")
+    core_m: float = Field(0.05, gt=0, description="... and at least min_core_fraction of them lie this close to the median of their 0.5 m column ...")
+    min_core_fraction: float = Field(0.65, ge=0, le=1, description="... (foliage scatters its returns evenly; a facade's recesses shift whole columns), and ...")
+    max_behind: float = Field(1.0, ge=0, description="... at most this many returns per wall return lie up to 1 m behind it (a wall hides what is behind it; foliage does not)")
     min_span_m: float = Field(0.8, ge=0, description="a wall's returns span at least this much in height")
     min_top_m: float = Field(1.5, ge=0, description="a wall reaches at least this high above the local ground, and ...")
-    tall_m: float = Field(2.5, ge=0, description="... is hit by the scan's top beam, or is this high (taller than vans, fences, hedges), ...")
+    tall_m: float = Field(2.3, ge=0, description="... is hit by the scan's top beam, or is this high (taller than vans, fences, hedges), ...")
     long_m: float = Field(6.0, ge=0, description="... or is at least this long (longer than a vehicle) ...")
     long_min_top_m: float = Field(1.8, ge=0, description="... and this high (a garden or boundary wall; taller than cars and fences)")
-    envelope_margin_deg: float = Field(0.5, ge=0, description="reaching the top beam = a return within this elevation of the scan's top beam")
+    envelope_margin_m: float = Field(0.15, ge=0, description="reaching the top beam = a return this close below it ...")
+    envelope_margin_deg: float = Field(0.3, ge=0, description="... or within this elevation of it (far away)")
     top_beam_quantile: float = Field(0.999, gt=0, le=1, description="the scan's top beam = this quantile of its returns' elevation angles")
 
 
 COLUMN_M = 0.5
 """Length of the columns along a wall in which its height is judged (metres)."""
+MAX_TILT_DEG = 15.0
+"""Largest lean of a wall (or tilt of the sensor) taken out of its spread (degrees)."""
+BEHIND_M = 1.0
+"""How far behind a wall's line returns count as seen through it (metres) ..."""
+BEHIND_MAX_HEIGHT_M = 1.8
+"""... if they are at most this high above the ground (a tree crown behind a low wall does not count)."""
+SEEN_OVER_M = 0.5
+"""A return this much farther away than a structure, and higher, was seen over it (metres)."""
 
 
 # --- stage 0: input -------------------------------------------------------------------------------------
@@ -142,29 +157,114 @@ def heights_above_local_ground(xyz: np.ndarray, config: VerticalStructureConfig)
 
 # --- stage 3: structure cells ---------------------------------------------------------------------------
 
-def structure_cells(xy: np.ndarray, height: np.ndarray, config: VerticalStructureConfig):
-    """Group (M, 2) non-ground points into ``cell_m`` cells and keep the cells that rise high enough.
+@dataclass(frozen=True)
+class Cells:
+    """Candidate cells and what the later stages need of their points (C cells, M non-ground points).
 
-    Returns (point_cell (M,) index of each point's candidate cell or -1, centroids (C, 2) of the
-    candidate cells' points, weights (C,) points per candidate cell).
+    Attributes:
+        point_cell: (M,) each point's candidate cell, or -1.
+        count: (C,) points per cell at least ``line_min_height_m`` high (the ones that place lines).
+        centroid: (C, 2) mean x, y of those points.
+        scatter: (C, 3) sums of dx*dx, dx*dy, dy*dy about the centroid (for exact line fits of groups).
+        top, bottom: (C,) highest and lowest point above the local ground.
+        reaches_top: (C,) a point of the cell is hit by (within the envelope margins of) the top beam,
+            and the sensor does not see over the cell.
+        grid_keys, grid_counts, grid_origin: every cell (sorted keys) with non-ground points at most
+            ``BEHIND_MAX_HEIGHT_M`` high, and how many, to count such points anywhere (``points_at``).
     """
-    ci = np.floor(xy[:, 0] / config.cell_m).astype(np.int64)
-    cj = np.floor(xy[:, 1] / config.cell_m).astype(np.int64)
-    key = (ci - ci.min()) * (int(cj.max() - cj.min()) + 1) + (cj - cj.min())
+
+    point_cell: np.ndarray
+    count: np.ndarray
+    centroid: np.ndarray
+    scatter: np.ndarray
+    top: np.ndarray
+    bottom: np.ndarray
+    reaches_top: np.ndarray
+    grid_keys: np.ndarray
+    grid_counts: np.ndarray
+    grid_origin: tuple
+
+    def points_at(self, xy: np.ndarray) -> np.ndarray:
+        """(K,) low non-ground points in the ``cell_m`` cell under each (K, 2) position."""
+        size, i0, j0, width = self.grid_origin[0], self.grid_origin[1], self.grid_origin[2], self.grid_origin[3]
+        ci = np.floor(xy[:, 0] / size).astype(np.int64) - i0
+        cj = np.floor(xy[:, 1] / size).astype(np.int64) - j0
+        key = ci * width + cj
+        valid = (cj >= 0) & (cj < width) & (ci >= 0)
+        pos = np.minimum(np.searchsorted(self.grid_keys, key), len(self.grid_keys) - 1)
+        return np.where(valid & (self.grid_keys[pos] == key), self.grid_counts[pos], 0)
+
+    def __len__(self) -> int:
+        return len(self.count)
+
+
+def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config: VerticalStructureConfig) -> Cells:
+    """Group (M, 3) non-ground points (``height`` (M,) above the local ground) into ``cell_m`` cells and
+    keep the cells whose highest point is at least ``cell_min_top_m`` up. The cells' positions and
+    line moments come from their points at least ``line_min_height_m`` up; heights from all."""
+    ci = np.floor(xyz[:, 0] / config.cell_m).astype(np.int64)
+    cj = np.floor(xyz[:, 1] / config.cell_m).astype(np.int64)
+    i0, j0, width = int(ci.min()), int(cj.min()), int(cj.max() - cj.min()) + 1
+    key = (ci - i0) * width + (cj - j0)
     _, cell = np.unique(key, return_inverse=True)
-    n_cells = int(cell.max()) + 1 if len(cell) else 0
-    top = np.full(n_cells, -np.inf)
+    grid_keys, grid_counts = np.unique(key[height <= BEHIND_MAX_HEIGHT_M], return_counts=True)
+    n_all = int(cell.max()) + 1
+    top = np.full(n_all, -np.inf)
     np.maximum.at(top, cell, height)
-    candidate = top >= config.cell_min_top_m
-    renumber = np.full(n_cells, -1)
+    candidate = top >= max(config.cell_min_top_m, config.line_min_height_m)
+    renumber = np.full(n_all, -1)
     renumber[candidate] = np.arange(int(candidate.sum()))
     point_cell = renumber[cell]
-    inside = point_cell >= 0
     n = int(candidate.sum())
-    weights = np.bincount(point_cell[inside], minlength=n).astype(float)
-    centroids = np.column_stack([np.bincount(point_cell[inside], xy[inside, 0], n),
-                                 np.bincount(point_cell[inside], xy[inside, 1], n)]) / np.maximum(weights, 1)[:, None]
-    return point_cell, centroids, weights
+    inside = np.flatnonzero(point_cell >= 0)
+    bottom = np.full(n, np.inf)
+    np.minimum.at(bottom, point_cell[inside], height[inside])
+    upper = inside[height[inside] >= config.line_min_height_m]
+    c = point_cell[upper]
+    x, y = xyz[upper, 0], xyz[upper, 1]
+    count = np.bincount(c, minlength=n).astype(float)
+    centroid = np.column_stack([np.bincount(c, x, n), np.bincount(c, y, n)]) / np.maximum(count, 1)[:, None]
+    dx, dy = x - centroid[c, 0], y - centroid[c, 1]
+    scatter = np.column_stack([np.bincount(c, dx * dx, n), np.bincount(c, dx * dy, n), np.bincount(c, dy * dy, n)])
+    # How close each cell comes to the top beam: the largest z - range * tan(top beam) (<= 0 below it),
+    # and whether the sensor sees over it (a higher return farther away in the same direction).
+    rng = np.hypot(x, y)
+    reach = np.full(n, -np.inf)
+    np.maximum.at(reach, c, xyz[upper, 2] - rng * tan_top)
+    slope = np.full(n, -np.inf)
+    np.maximum.at(slope, c, xyz[upper, 2] / np.maximum(rng, 1e-9))
+    cell_range = np.hypot(centroid[:, 0], centroid[:, 1])
+    margin = np.maximum(config.envelope_margin_m, cell_range * np.tan(np.deg2rad(config.envelope_margin_deg)))
+    over_slope, over_range, az_bin = highest_returns(xyz, tan_top, config)
+    b = az_bin(centroid)
+    seen_over = (over_slope[b] > slope + 1e-4) & (over_range[b] > cell_range + SEEN_OVER_M)
+    return Cells(point_cell, count, centroid, scatter, top[candidate], bottom, (reach >= -margin) & ~seen_over,
+                 grid_keys, grid_counts, (config.cell_m, i0, j0, width))
+
+
+def highest_returns(xyz: np.ndarray, tan_top: float, config: VerticalStructureConfig):
+    """The highest return in each ``link_azimuth_deg / 2`` azimuth bin, among returns near the top beam.
+
+    Returns (slope (B,) largest z / range per bin (-inf: none), range (B,) of that return, a function
+    mapping (K, 2) x, y to their bin numbers (K,)). A structure whose bin holds a higher return farther
+    away does not stop the top beams: the sensor sees over it (a van, a hedge, a garden wall).
+    """
+    width = np.deg2rad(config.link_azimuth_deg) / 2
+    n_bins = int(np.ceil(2 * np.pi / width))
+
+    def az_bin(xy: np.ndarray) -> np.ndarray:
+        return np.minimum(((np.arctan2(xy[:, 1], xy[:, 0]) + np.pi) / width).astype(np.int64), n_bins - 1)
+
+    rng = np.hypot(xyz[:, 0], xyz[:, 1])
+    slope = xyz[:, 2] / np.maximum(rng, 1e-9)
+    high = np.flatnonzero(slope >= np.tan(np.arctan(tan_top) - np.deg2rad(2.0)))
+    bins = az_bin(xyz[high, :2])
+    best = np.full(n_bins, -np.inf)
+    np.maximum.at(best, bins, slope[high])
+    at_best = slope[high] >= best[bins]
+    best_range = np.zeros(n_bins)
+    best_range[bins[at_best]] = rng[high][at_best]
+    return best, best_range, az_bin
 
 
 # --- stage 4: lines of cells ----------------------------------------------------------------------------
@@ -175,18 +275,21 @@ def neighbour_pairs(centroids: np.ndarray, config: VerticalStructureConfig) -> n
     range. The second kind links the samples of far walls and of walls seen at grazing incidence,
     which lie a few azimuth steps apart but can be metres apart on the ground.
     """
+    return _close_pairs(centroids, config.link_radius_m, config)
+
+
+def _close_pairs(points: np.ndarray, radius: float, config: VerticalStructureConfig) -> np.ndarray:
+    """(P, 2) index pairs i < j of (K, 2) points closer than ``radius`` or close as seen from the sensor
+    (within ``link_azimuth_deg`` in azimuth and ``link_radial_m`` in range)."""
     from scipy.spatial import cKDTree
 
-    n = len(centroids)
-    near = cKDTree(centroids).query_pairs(config.link_radius_m, output_type="ndarray")
-    azimuth = np.mod(np.arctan2(centroids[:, 1], centroids[:, 0]), 2 * np.pi)
-    a_scale = np.deg2rad(config.link_azimuth_deg)
-    polar = np.column_stack([azimuth / a_scale, np.hypot(centroids[:, 0], centroids[:, 1]) / config.link_radial_m])
-    polar[:, 0] = np.minimum(polar[:, 0], 2 * np.pi / a_scale - 1e-9)
-    tree = cKDTree(polar, boxsize=[2 * np.pi / a_scale, 1e12])
-    angular = np.sort(tree.query_pairs(1.0, output_type="ndarray"), axis=1)
-    key = np.unique(np.concatenate([near[:, 0] * n + near[:, 1], angular[:, 0] * n + angular[:, 1]]))
-    return np.column_stack([key // n, key % n]).astype(np.int64)
+    near = cKDTree(points).query_pairs(radius, output_type="ndarray")
+    # Azimuth as a point on a circle of radius 1 / (azimuth scale): chord ~ angle for small angles.
+    rng = np.hypot(points[:, 0], points[:, 1])
+    unit = points / np.maximum(rng, 1e-9)[:, None] / np.deg2rad(config.link_azimuth_deg)
+    angular = cKDTree(np.column_stack([unit, rng / config.link_radial_m])).query_pairs(1.0, output_type="ndarray")
+    apart = np.hypot(*(points[angular[:, 0]] - points[angular[:, 1]]).T) > radius
+    return np.concatenate([near, angular[apart]]).astype(np.int64).reshape(-1, 2)
 
 
 def link_cells(centroids: np.ndarray, weights: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
@@ -236,97 +339,97 @@ def link_cells(centroids: np.ndarray, weights: np.ndarray, config: VerticalStruc
     return labels
 
 
-# --- stage 5: pieces ------------------------------------------------------------------------------------
+# --- stage 5: pieces (on cells) ------------------------------------------------------------------------
 
-def _tls_lines(label: np.ndarray, xy: np.ndarray, n: int):
-    """Per-label total-least-squares lines of (M, 2) points: centroids (n, 2), unit directions (n, 2), counts (n,)."""
-    count = np.bincount(label, minlength=n).astype(float)
-    safe = np.maximum(count, 1)
-    mx = np.bincount(label, xy[:, 0], n) / safe
-    my = np.bincount(label, xy[:, 1], n) / safe
-    dx, dy = xy[:, 0] - mx[label], xy[:, 1] - my[label]
-    sxx = np.bincount(label, dx * dx, n)
-    syy = np.bincount(label, dy * dy, n)
-    sxy = np.bincount(label, dx * dy, n)
-    theta = 0.5 * np.arctan2(2 * sxy, sxx - syy)
-    return np.column_stack([mx, my]), np.column_stack([np.cos(theta), np.sin(theta)]), count
+def _group_lines(label: np.ndarray, cells: Cells, members: np.ndarray, n: int):
+    """Exact TLS lines of groups of cells from their moments (parallel-axis theorem).
 
-
-def _cut_at_gaps(label: np.ndarray, along: np.ndarray, max_gap: float):
-    """Order points by (label, along) and number the runs without gaps: (order (M,), piece (M,), count)."""
-    order = np.lexsort((along, label))
-    lab, t = label[order], along[order]
-    new = np.ones(len(order), bool)
-    new[1:] = (lab[1:] != lab[:-1]) | (np.diff(t) > max_gap)
-    piece = np.cumsum(new) - 1
-    return order, piece, int(piece[-1]) + 1 if len(piece) else 0
-
-
-class _Pieces:
-    """Line pieces over a set of points: label per point, and per piece its TLS line and extent."""
-
-    def __init__(self, label: np.ndarray, xy: np.ndarray, n: int):
-        self.label, self.n = label, n
-        self.centroid, self.direction, self.count = _tls_lines(label, xy, n)
-        rel = xy - self.centroid[label]
-        self.along = (rel * self.direction[label]).sum(1)
-        self.offset = rel[:, 0] * self.direction[label, 1] - rel[:, 1] * self.direction[label, 0]
-        self.t_min = np.full(n, np.inf)
-        self.t_max = np.full(n, -np.inf)
-        np.minimum.at(self.t_min, label, self.along)
-        np.maximum.at(self.t_max, label, self.along)
-        self.rms = np.sqrt(np.bincount(label, self.offset ** 2, n) / np.maximum(self.count, 1))
-
-    def endpoints(self) -> tuple[np.ndarray, np.ndarray]:
-        return (self.centroid + self.t_min[:, None] * self.direction,
-                self.centroid + self.t_max[:, None] * self.direction)
-
-
-def line_pieces(xy: np.ndarray, group: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
-    """(M,) piece label of each (M, 2) point from its cell group (``group`` -1 = none); -1 = not on a piece.
-
-    The group's line is fitted, points off it are dropped, the rest is cut at gaps, refitted once
-    more (a corner's other wall or a bush no longer pulls it), and collinear pieces whose ends are
-    close are joined.
+    ``members`` (K,) cell indices with ``label`` (K,) group numbers < n. Returns centroids (n, 2),
+    unit directions (n, 2), point counts (n,) and mean squared distances of the points to the line (n,).
     """
-    label = np.full(len(xy), -1)
-    member = np.flatnonzero(group >= 0)
-    if len(member) == 0:
+    w = cells.count[members]
+    c = cells.centroid[members]
+    total = np.bincount(label, w, n)
+    safe = np.maximum(total, 1)
+    mean = np.column_stack([np.bincount(label, w * c[:, 0], n), np.bincount(label, w * c[:, 1], n)]) / safe[:, None]
+    d = c - mean[label]
+    sc = cells.scatter[members]
+    sxx = np.bincount(label, sc[:, 0] + w * d[:, 0] ** 2, n)
+    sxy = np.bincount(label, sc[:, 1] + w * d[:, 0] * d[:, 1], n)
+    syy = np.bincount(label, sc[:, 2] + w * d[:, 1] ** 2, n)
+    theta = 0.5 * np.arctan2(2 * sxy, sxx - syy)
+    direction = np.column_stack([np.cos(theta), np.sin(theta)])
+    # Scatter across the line: the smaller eigenvalue of the 2 x 2 scatter matrix.
+    across = 0.5 * (sxx + syy) - np.sqrt(0.25 * (sxx - syy) ** 2 + sxy ** 2)
+    return mean, direction, total, np.maximum(across, 0) / safe
+
+
+def _azimuth_gap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle (rad) between the directions of (K, 2) points a and b as seen from the sensor."""
+    return np.abs(np.angle((a[:, 0] + 1j * a[:, 1]) * np.conj(b[:, 0] + 1j * b[:, 1])))
+
+
+def cell_pieces(cells: Cells, group: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """(C,) piece label of each candidate cell from its line group (``group``, -1 = none); -1 = none.
+
+    Each group's line is fitted to its points; cells whose centroid lies farther than
+    ``inlier_tolerance_m`` from it are dropped; the rest is cut where consecutive cells along the line
+    are more than ``max_gap_m`` apart *and* more than ``link_azimuth_deg`` apart as seen from the
+    sensor (a far or grazing wall's samples are sparse, not gapped); each piece is refitted, cleaned
+    the same way, and collinear pieces whose ends are close are joined.
+    """
+    label = np.full(len(cells), -1)
+    members = np.flatnonzero(group >= 0)
+    if len(members) == 0:
         return label
-    _, grp = np.unique(group[member], return_inverse=True)
-    fit = _Pieces(grp, xy[member], int(grp.max()) + 1)
-    keep = np.abs(fit.offset) <= config.inlier_tolerance_m
-    member, grp, along = member[keep], grp[keep], fit.along[keep]
-    order, piece, n = _cut_at_gaps(grp, along, config.max_gap_m)
-    member = member[order]
-    # Refit each piece on its own points and drop what now lies off it.
-    fit = _Pieces(piece, xy[member], n)
-    keep = np.abs(fit.offset) <= config.inlier_tolerance_m
-    member, piece = member[keep], piece[keep]
-    if len(member) == 0:
-        return label
-    _, piece = np.unique(piece, return_inverse=True)
-    piece = merge_collinear(xy[member], piece, config)
-    label[member] = piece
+    _, grp = np.unique(group[members], return_inverse=True)
+    for _ in range(2):
+        n = int(grp.max()) + 1
+        mean, direction, _, _ = _group_lines(grp, cells, members, n)
+        rel = cells.centroid[members] - mean[grp]
+        offset = rel[:, 0] * direction[grp, 1] - rel[:, 1] * direction[grp, 0]
+        keep = np.abs(offset) <= config.inlier_tolerance_m
+        members, grp = members[keep], grp[keep]
+        if len(members) == 0:
+            return label
+        along = (rel[keep] * direction[grp]).sum(1)
+        order = np.lexsort((along, grp))
+        members, grp, along = members[order], grp[order], along[order]
+        c = cells.centroid[members]
+        new = np.ones(len(members), bool)
+        gap = (np.diff(along) > config.max_gap_m) & (_azimuth_gap(c[1:], c[:-1]) > np.deg2rad(config.link_azimuth_deg))
+        new[1:] = (grp[1:] != grp[:-1]) | gap
+        grp = np.cumsum(new) - 1
+    label[members] = merge_collinear(cells, members, grp, config)
     return label
 
 
-def merge_collinear(xy: np.ndarray, piece: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
-    """Join pieces of one line whose ends lie within ``merge_gap_m``; returns the new (M,) piece labels."""
+def _piece_ends(cells: Cells, members: np.ndarray, label: np.ndarray, n: int):
+    """Lines and end points (from cell centroids) of pieces: mean, direction, count, msd, a (n, 2), b (n, 2)."""
+    mean, direction, count, msd = _group_lines(label, cells, members, n)
+    along = ((cells.centroid[members] - mean[label]) * direction[label]).sum(1)
+    t_min = np.full(n, np.inf)
+    t_max = np.full(n, -np.inf)
+    np.minimum.at(t_min, label, along)
+    np.maximum.at(t_max, label, along)
+    return mean, direction, count, msd, mean + t_min[:, None] * direction, mean + t_max[:, None] * direction, along
+
+
+def merge_collinear(cells: Cells, members: np.ndarray, piece: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """Join pieces (labels ``piece`` of cells ``members``) of one line whose ends are close: within
+    ``merge_gap_m``, or within ``link_azimuth_deg`` and ``link_radial_m`` as seen from the sensor.
+    Returns the new (K,) labels."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
 
     n = int(piece.max()) + 1
     if n < 2 or config.merge_gap_m <= 0:
         return piece
-    fit = _Pieces(piece, xy, n)
-    a, b = fit.endpoints()
+    _, u, _, _, a, b, _ = _piece_ends(cells, members, piece, n)
     ends = np.concatenate([a, b])
-    pairs = cKDTree(ends).query_pairs(config.merge_gap_m, output_type="ndarray")
+    pairs = _close_pairs(ends, config.merge_gap_m, config)
     i, j = pairs[:, 0] % n, pairs[:, 1] % n
     i, j = i[i != j], j[i != j]
-    u = fit.direction
     normal = np.column_stack([-u[:, 1], u[:, 0]])
     mid = (a + b) / 2
     dm = mid[j] - mid[i]
@@ -360,55 +463,175 @@ def _group_median(group: np.ndarray, value: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def wall_segments(xyz: np.ndarray, height: np.ndarray, label: np.ndarray, tan_top: float,
-                  config: VerticalStructureConfig) -> ScanSegments:
-    """The pieces (``label`` per point of (M, 3) ``xyz``, -1 = none) that are walls, as ScanSegments.
+def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """(C,) piece label of the cells of pieces that pass every test but the final per-point ones; -1 = none.
 
-    Heights are judged along the wall, in ``COLUMN_M`` columns: a piece's top is the median of its
-    columns' highest returns and it reaches the top beam when at least half of its columns do, so a
-    tree crown hanging over a fence does not make the fence a wall.
+    Heights are judged along the piece, in ``COLUMN_M`` columns: its top is the median of its columns'
+    highest points, and it reaches the top beam when at least half of its columns do (within
+    ``envelope_margin_m`` or ``envelope_margin_deg``), so a tree crown hanging over a fence does not
+    make the fence a wall.
     """
-    member = np.flatnonzero(label >= 0)
-    if len(member) == 0:
-        return ScanSegments.empty()
-    _, piece = np.unique(label[member], return_inverse=True)
+    out = np.full(len(cells), -1)
+    members = np.flatnonzero(label >= 0)
+    if len(members) == 0:
+        return out
+    _, piece = np.unique(label[members], return_inverse=True)
     n = int(piece.max()) + 1
-    pts, h = xyz[member], height[member]
-    fit = _Pieces(piece, pts[:, :2], n)
-    # Columns along each piece: highest return and smallest shortfall below the top beam.
-    column = np.floor((fit.along - fit.t_min[piece]) / COLUMN_M).astype(np.int64)
+    _, _, count, msd, a, b, along = _piece_ends(cells, members, piece, n)
+    t_min = np.full(n, np.inf)
+    np.minimum.at(t_min, piece, along)
+    column = np.floor((along - t_min[piece]) / COLUMN_M).astype(np.int64)
     _, col = np.unique(piece * (int(column.max()) + 1) + column, return_inverse=True)
     n_col = int(col.max()) + 1
     col_piece = np.zeros(n_col, np.int64)
     col_piece[col] = piece
     col_top = np.full(n_col, -np.inf)
-    np.maximum.at(col_top, col, h)
-    rng = np.hypot(pts[:, 0], pts[:, 1])
-    shortfall = np.arctan(tan_top) - np.arctan2(pts[:, 2], rng)
-    col_short = np.full(n_col, np.inf)
-    np.minimum.at(col_short, col, shortfall)
+    np.maximum.at(col_top, col, cells.top[members])
+    reaching = np.zeros(n_col, bool)
+    np.logical_or.at(reaching, col, cells.reaches_top[members])
     top = _group_median(col_piece, col_top, n)
-    reach = np.bincount(col_piece, col_short <= np.deg2rad(config.envelope_margin_deg), n)
-    reaches_top = reach >= 0.5 * np.bincount(col_piece, minlength=n)
+    reaches_top = np.bincount(col_piece, reaching, n) >= 0.5 * np.bincount(col_piece, minlength=n)
     bottom = np.full(n, np.inf)
-    np.minimum.at(bottom, piece, h)
+    np.minimum.at(bottom, piece, cells.bottom[members])
+    length = np.hypot(*(b - a).T)
+    ok = (count >= config.min_points) & (length >= config.min_length_m) & (np.sqrt(msd) <= config.max_rms_m)
+    ok &= (top - bottom >= config.min_span_m) & (top >= config.min_top_m)
+    ok &= reaches_top | (top >= config.tall_m) | ((length >= config.long_m) & (top >= config.long_min_top_m))
+    out[members] = np.where(ok[piece], piece, -1)
+    return out
+
+
+@dataclass(frozen=True)
+class PieceMeasures:
+    """What the final tests look at, per piece (n pieces), from the points of each piece's cells.
+
+    Attributes:
+        a, b: (n, 2) ends (extreme projections of the inliers on their TLS line).
+        count: (n,) inlier points; z_mean, z_min, z_max: (n,) their heights (velodyne frame).
+        rms: (n,) rms distance of the inliers to the line.
+        core: (n,) share of inliers within ``core_m`` of the median offset of their 0.5 m column.
+        behind: (n,) non-ground points up to ``BEHIND_M`` behind the line (seen from the sensor), per inlier.
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    count: np.ndarray
+    z_mean: np.ndarray
+    z_min: np.ndarray
+    z_max: np.ndarray
+    rms: np.ndarray
+    core: np.ndarray
+    behind: np.ndarray
+
+    @property
+    def length(self) -> np.ndarray:
+        return np.hypot(*(self.b - self.a).T)
+
+
+def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.ndarray,
+                   config: VerticalStructureConfig) -> PieceMeasures | None:
+    """Measures of the pieces (``label`` per cell, -1 = none) from the (M, 3) non-ground points ``xyz``
+    (``height`` (M,) above the ground) that ``cells`` was made of. Only points at least
+    ``line_min_height_m`` up and within ``inlier_tolerance_m`` of the piece's line (refitted once
+    after dropping the others) count; distances to the line are taken about its lean (see
+    ``_untilted``). None when no piece is left."""
+    point_piece = np.where(cells.point_cell >= 0, label[np.maximum(cells.point_cell, 0)], -1)
+    point_piece[height < config.line_min_height_m] = -1
+    member = np.flatnonzero(point_piece >= 0)
+    if len(member) == 0:
+        return None
+    _, piece = np.unique(point_piece[member], return_inverse=True)
+    n = int(piece.max()) + 1
+    for _ in range(2):
+        pts = xyz[member]
+        count = np.bincount(piece, minlength=n).astype(float)
+        safe = np.maximum(count, 1)
+        mean = np.column_stack([np.bincount(piece, pts[:, 0], n), np.bincount(piece, pts[:, 1], n)]) / safe[:, None]
+        dx, dy = pts[:, 0] - mean[piece, 0], pts[:, 1] - mean[piece, 1]
+        theta = 0.5 * np.arctan2(2 * np.bincount(piece, dx * dy, n), np.bincount(piece, dx * dx - dy * dy, n))
+        u = np.column_stack([np.cos(theta), np.sin(theta)])
+        offset = _untilted(dx * u[piece, 1] - dy * u[piece, 0], pts[:, 2], piece, n)
+        keep = np.abs(offset) <= config.inlier_tolerance_m
+        member, piece = member[keep], piece[keep]
+        if len(member) == 0:
+            return None
+    along = dx[keep] * u[piece, 0] + dy[keep] * u[piece, 1]
+    offset = offset[keep]
+    t_min = np.full(n, np.inf)
+    t_max = np.full(n, -np.inf)
+    np.minimum.at(t_min, piece, along)
+    np.maximum.at(t_max, piece, along)
+    z = xyz[member, 2]
     z_min = np.full(n, np.inf)
     z_max = np.full(n, -np.inf)
-    np.minimum.at(z_min, piece, pts[:, 2])
-    np.maximum.at(z_max, piece, pts[:, 2])
-    z_mean = np.bincount(piece, pts[:, 2], n) / fit.count
-    length = fit.t_max - fit.t_min
-    wall = (fit.count >= config.min_points) & (length >= config.min_length_m) & (fit.rms <= config.max_rms_m)
-    wall &= (top - bottom >= config.min_span_m) & (top >= config.min_top_m)
-    wall &= reaches_top | (top >= config.tall_m) | ((length >= config.long_m) & (top >= config.long_min_top_m))
-    if not wall.any():
+    np.minimum.at(z_min, piece, z)
+    np.maximum.at(z_max, piece, z)
+    count = np.bincount(piece, minlength=n).astype(float)
+    safe = np.maximum(count, 1)
+    # Thinness along the wall: distance of each point to the median offset of its 0.5 m column (a
+    # facade's recesses shift whole columns; foliage scatters the points of every column).
+    column = np.floor((along - t_min[piece]) / COLUMN_M).astype(np.int64)
+    _, col = np.unique(piece * (int(column.max()) + 1) + column, return_inverse=True)
+    col_median = _group_median(col, offset, int(col.max()) + 1)
+    a = mean + t_min[:, None] * u
+    b = mean + t_max[:, None] * u
+    return PieceMeasures(a=a, b=b, count=count, z_mean=np.bincount(piece, z, n) / safe, z_min=z_min, z_max=z_max,
+                         rms=np.sqrt(np.bincount(piece, offset ** 2, n) / safe),
+                         core=np.bincount(piece, np.abs(offset - col_median[col]) <= config.core_m, n) / safe,
+                         behind=_points_behind(cells, a, b, config) / safe)
+
+
+def _untilted(offset: np.ndarray, z: np.ndarray, piece: np.ndarray, n: int) -> np.ndarray:
+    """Offsets (K,) from a piece's line minus their linear trend with height (at most ``MAX_TILT_DEG``).
+
+    A wall is vertical in the world, not in the sensor's frame when the vehicle pitches or rolls:
+    a 1 deg tilt moves a 10 m high wall's top 17 cm sideways. The trend is measured about the
+    piece's mean height, so the line itself (through the centroid) stays where it is.
+    """
+    count = np.maximum(np.bincount(piece, minlength=n), 1)
+    dz = z - (np.bincount(piece, z, n) / count)[piece]
+    slope = np.bincount(piece, offset * dz, n) / np.maximum(np.bincount(piece, dz * dz, n), 1e-9)
+    limit = np.tan(np.deg2rad(MAX_TILT_DEG))
+    return offset - np.clip(slope, -limit, limit)[piece] * dz
+
+
+def _points_behind(cells: Cells, a: np.ndarray, b: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """(n,) non-ground points in the band from ``inlier_tolerance_m`` to ``BEHIND_M`` behind each (n, 2)
+    a-b line, on the side away from the sensor (a solid wall hides that band; foliage does not)."""
+    step = cells.grid_origin[0]
+    length = np.hypot(*(b - a).T)
+    u = (b - a) / np.maximum(length, 1e-9)[:, None]
+    away = np.column_stack([-u[:, 1], u[:, 0]])
+    away *= np.where(((a + b) / 2 * away).sum(1) < 0, -1.0, 1.0)[:, None]
+    n_along = np.ceil(length / step).astype(np.int64) + 1
+    offsets = np.arange(config.inlier_tolerance_m + step / 2, BEHIND_M, step)
+    owner = np.repeat(np.arange(len(a)), n_along)
+    t = (np.arange(len(owner)) - np.repeat(np.cumsum(n_along) - n_along, n_along)) * step
+    t = np.minimum(t, np.repeat(length, n_along))
+    base = a[owner] + t[:, None] * u[owner]
+    owner = np.repeat(owner, len(offsets))
+    xy = np.repeat(base, len(offsets), axis=0) + np.tile(offsets, len(base))[:, None] * away[owner]
+    # Count each grid cell once per line.
+    size, i0, j0, width = cells.grid_origin
+    key = (np.floor(xy[:, 0] / size).astype(np.int64) - i0) * width + (np.floor(xy[:, 1] / size).astype(np.int64) - j0)
+    _, first = np.unique(owner * (cells.grid_keys.max() + width + 1) + key, return_index=True)
+    return np.bincount(owner[first], cells.points_at(xy[first]), len(a))
+
+
+def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfig) -> ScanSegments:
+    """The pieces that pass the final tests (returns, length, spread, thinness, opacity) as segments."""
+    if measures is None:
         return ScanSegments.empty()
-    a, b = fit.endpoints()
-    order = np.lexsort((a[wall, 1], a[wall, 0]))
-    sel = np.flatnonzero(wall)[order]
-    return ScanSegments(segments=np.column_stack([a[sel], b[sel]]), z_mean=z_mean[sel],
-                        n_points=fit.count[sel].astype(np.int64), z_min=z_min[sel], z_max=z_max[sel],
-                        rms=fit.rms[sel])
+    m = measures
+    wall = (m.count >= config.min_points) & (m.length >= config.min_length_m) & (m.rms <= config.max_rms_m)
+    wall &= (m.core >= config.min_core_fraction) & (m.behind <= config.max_behind)
+    sel = np.flatnonzero(wall)
+    if len(sel) == 0:
+        return ScanSegments.empty()
+    sel = sel[np.lexsort((m.a[sel, 1], m.a[sel, 0]))]
+    return ScanSegments(segments=np.column_stack([m.a[sel], m.b[sel]]), z_mean=m.z_mean[sel],
+                        n_points=m.count[sel].astype(np.int64), z_min=m.z_min[sel], z_max=m.z_max[sel],
+                        rms=m.rms[sel])
 
 
 # --- the extractor --------------------------------------------------------------------------------------
@@ -441,13 +664,13 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
     xyz, height = xyz[above], height[above]
     if len(xyz) < config.min_points:
         return ScanSegments.empty()
-    point_cell, centroids, weights = structure_cells(xyz[:, :2], height, config)
+    cells = structure_cells(xyz, height, tan_top, config)
     clock.lap("cells")
-    cell_group = link_cells(centroids, weights, config)
-    group = np.where(point_cell >= 0, cell_group[np.maximum(point_cell, 0)], -1)
+    group = link_cells(cells.centroid, cells.count, config)
     clock.lap("lines")
-    label = line_pieces(xyz[:, :2], group, config)
+    label = cell_pieces(cells, group, config)
     clock.lap("pieces")
-    result = wall_segments(xyz, height, label, tan_top, config)
+    label = tall_pieces(cells, label, config)
+    result = wall_segments(piece_measures(xyz, height, cells, label, config), config)
     clock.lap("walls")
     return result
