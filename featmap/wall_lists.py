@@ -28,11 +28,13 @@ ANGLE_DEG = 10.0
 
 @dataclass(frozen=True)
 class ListedLine:
-    """A wall drawn by eye: ``p``, ``q`` (2,) endpoints (metres, the scan's frame)."""
+    """A wall drawn by eye: ``p``, ``q`` (2,) endpoints (metres, the scan's frame); ``known_miss``:
+    why the current extractor does not find it (empty when it should)."""
 
     name: str
     p: np.ndarray
     q: np.ndarray
+    known_miss: str = ""
 
     @property
     def segment(self) -> np.ndarray:
@@ -45,13 +47,16 @@ class ListedLine:
 
 @dataclass(frozen=True)
 class ScanWallList:
-    """What can be seen in one scan: required walls, optional structure, clutter boxes (K, 4) ``x0 x1 y0 y1``."""
+    """What can be seen in one scan: required walls, optional structure, clutter boxes (K, 4) ``x0 x1 y0 y1``,
+    how many segments may lie on nothing listed, and (``known_clutter``) why the current extractor
+    still puts a segment in a clutter box (empty when it should not)."""
 
     walls: list[ListedLine]
     optional: list[ListedLine] = field(default_factory=list)
     clutter_names: list[str] = field(default_factory=list)
     clutter: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     max_unlisted: int = 0
+    known_clutter: str = ""
 
 
 @dataclass(frozen=True)
@@ -150,7 +155,7 @@ def _line(raw, path: Path, where: str) -> ListedLine:
             raise ValueError
     except (KeyError, TypeError, ValueError):
         raise InputFileError(path, f"{where}: expected {{name, p: [x, y], q: [x, y]}} with p != q, got {raw!r}") from None
-    return ListedLine(str(raw.get("name", where)), p, q)
+    return ListedLine(str(raw.get("name", where)), p, q, str(raw.get("known_miss", "")))
 
 
 def read_wall_lists(path: str | Path) -> WallLists:
@@ -180,5 +185,5 @@ def read_wall_lists(path: str | Path) -> WallLists:
             names.append(str(c.get("name", f"clutter #{k}")))
             boxes.append(box)
         scans[str(name)] = ScanWallList(walls, optional, names, np.asarray(boxes, float).reshape(-1, 4),
-                                        int(entry.get("max_unlisted", 0)))
+                                        int(entry.get("max_unlisted", 0)), str(entry.get("known_clutter", "")))
     return WallLists(scans, float(data.get("tolerance_m", 0.5)), float(data.get("min_coverage", 0.9)))

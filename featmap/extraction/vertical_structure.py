@@ -306,34 +306,39 @@ def link_cells(centroids: np.ndarray, weights: np.ndarray, config: VerticalStruc
     pairs = neighbour_pairs(centroids, config)
     if n < 2 or len(pairs) == 0:
         return np.full(n, -1)
-    i = np.concatenate([pairs[:, 0], pairs[:, 1]])
-    j = np.concatenate([pairs[:, 1], pairs[:, 0]])
-    d = centroids[j] - centroids[i]
+    p, q = pairs[:, 0], pairs[:, 1]
+    d = centroids[q] - centroids[p]                          # one entry per undirected pair
     bins = 36
-    angle = np.mod(np.arctan2(d[:, 1], d[:, 0]), np.pi)
-    b = np.minimum((angle * (bins / np.pi)).astype(np.int64), bins - 1)
-    votes = np.bincount(i * bins + b, weights=weights[j], minlength=n * bins).reshape(n, bins)
-    votes = votes + 0.5 * (np.roll(votes, 1, axis=1) + np.roll(votes, -1, axis=1))
+    b = (np.mod(np.arctan2(d[:, 1], d[:, 0]), np.pi) * (bins / np.pi)).astype(np.int64)
+    b = np.minimum(b, bins - 1)
+    votes = (np.bincount(p * bins + b, weights=weights[q], minlength=n * bins)
+             + np.bincount(q * bins + b, weights=weights[p], minlength=n * bins)).reshape(n, bins)
+    votes += 0.5 * (np.roll(votes, 1, axis=1) + np.roll(votes, -1, axis=1))
     theta = (np.argmax(votes, axis=1) + 0.5) * (np.pi / bins)
     normal = np.column_stack([-np.sin(theta), np.cos(theta)])
-    on_line = np.abs((d * normal[i]).sum(1)) <= config.line_tolerance_m
-    # Refine each direction by a weighted principal axis of the neighbours on the dominant line.
-    ii, dd, ww = i[on_line], d[on_line], weights[j[on_line]]
-    total = np.bincount(ii, ww, n) + weights
-    mx = np.bincount(ii, ww * dd[:, 0], n) / total
-    my = np.bincount(ii, ww * dd[:, 1], n) / total
-    sxx = np.bincount(ii, ww * dd[:, 0] ** 2, n) / total - mx ** 2
-    syy = np.bincount(ii, ww * dd[:, 1] ** 2, n) / total - my ** 2
-    sxy = np.bincount(ii, ww * dd[:, 0] * dd[:, 1], n) / total - mx * my
+    # Refine each direction by a weighted principal axis of the neighbours on its dominant line
+    # (moments about the cell itself; a pair seen from its other end has the opposite offset).
+    tol = config.line_tolerance_m
+    at_p = np.abs(d[:, 0] * normal[p, 0] + d[:, 1] * normal[p, 1]) <= tol
+    at_q = np.abs(d[:, 0] * normal[q, 0] + d[:, 1] * normal[q, 1]) <= tol
+    owner = np.concatenate([p[at_p], q[at_q]])
+    w = np.concatenate([weights[q[at_p]], weights[p[at_q]]])
+    dd = np.concatenate([d[at_p], -d[at_q]])
+    total = np.bincount(owner, w, n) + weights
+    mx = np.bincount(owner, w * dd[:, 0], n) / total
+    my = np.bincount(owner, w * dd[:, 1], n) / total
+    sxx = np.bincount(owner, w * dd[:, 0] ** 2, n) / total - mx ** 2
+    syy = np.bincount(owner, w * dd[:, 1] ** 2, n) / total - my ** 2
+    sxy = np.bincount(owner, w * dd[:, 0] * dd[:, 1], n) / total - mx * my
     theta = 0.5 * np.arctan2(2 * sxy, sxx - syy)
     direction = np.column_stack([np.cos(theta), np.sin(theta)])
     normal = np.column_stack([-direction[:, 1], direction[:, 0]])
-    has_line = np.bincount(ii, minlength=n) >= config.min_support
-    linked = has_line[i] & has_line[j]
-    linked &= np.abs((direction[i] * direction[j]).sum(1)) >= np.cos(np.deg2rad(config.link_angle_deg))
-    linked &= np.abs((d * normal[i]).sum(1)) <= config.line_tolerance_m
-    linked &= np.abs((d * normal[j]).sum(1)) <= config.line_tolerance_m
-    graph = coo_matrix((np.ones(int(linked.sum())), (i[linked], j[linked])), shape=(n, n))
+    has_line = np.bincount(owner, minlength=n) >= config.min_support
+    linked = has_line[p] & has_line[q]
+    linked &= np.abs((direction[p] * direction[q]).sum(1)) >= np.cos(np.deg2rad(config.link_angle_deg))
+    linked &= np.abs((d * normal[p]).sum(1)) <= tol
+    linked &= np.abs((d * normal[q]).sum(1)) <= tol
+    graph = coo_matrix((np.ones(int(linked.sum())), (p[linked], q[linked])), shape=(n, n))
     _, labels = connected_components(graph, directed=False)
     labels[~has_line] = -1
     return labels
