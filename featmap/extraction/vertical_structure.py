@@ -512,7 +512,8 @@ class PieceMeasures:
 
     Attributes:
         a, b: (n, 2) ends (extreme projections of the inliers on their TLS line).
-        count: (n,) inlier points; z_mean, z_min, z_max: (n,) their heights (velodyne frame).
+        count: (n,) inlier points at least ``line_min_height_m`` up (they place the line);
+        n_points: (n,) inliers of any height; z_mean, z_min, z_max: (n,) their heights (velodyne frame).
         rms: (n,) rms distance of the inliers to the line.
         core: (n,) share of inliers within ``core_m`` of the median offset of their 0.5 m column.
         behind: (n,) non-ground points up to ``BEHIND_M`` behind the line (seen from the sensor), per inlier.
@@ -521,6 +522,7 @@ class PieceMeasures:
     a: np.ndarray
     b: np.ndarray
     count: np.ndarray
+    n_points: np.ndarray
     z_mean: np.ndarray
     z_min: np.ndarray
     z_max: np.ndarray
@@ -541,11 +543,11 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
     after dropping the others) count; distances to the line are taken about its lean (see
     ``_untilted``). None when no piece is left."""
     point_piece = np.where(cells.point_cell >= 0, label[np.maximum(cells.point_cell, 0)], -1)
-    point_piece[height < config.line_min_height_m] = -1
-    member = np.flatnonzero(point_piece >= 0)
+    low = height < config.line_min_height_m
+    member = np.flatnonzero((point_piece >= 0) & ~low)
     if len(member) == 0:
         return None
-    _, piece = np.unique(point_piece[member], return_inverse=True)
+    labels, piece = np.unique(point_piece[member], return_inverse=True)
     n = int(piece.max()) + 1
     for _ in range(2):
         pts = xyz[member]
@@ -566,13 +568,21 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
     t_max = np.full(n, -np.inf)
     np.minimum.at(t_min, piece, along)
     np.maximum.at(t_max, piece, along)
-    z = xyz[member, 2]
-    z_min = np.full(n, np.inf)
-    z_max = np.full(n, -np.inf)
-    np.minimum.at(z_min, piece, z)
-    np.maximum.at(z_max, piece, z)
     count = np.bincount(piece, minlength=n).astype(float)
     safe = np.maximum(count, 1)
+    # Heights and the number of returns include the piece's lower returns on its line.
+    lower = np.flatnonzero((point_piece >= 0) & low)
+    lower_piece = np.minimum(np.searchsorted(labels, point_piece[lower]), n - 1)
+    rel = xyz[lower, :2] - mean[lower_piece]
+    on = np.abs(rel[:, 0] * u[lower_piece, 1] - rel[:, 1] * u[lower_piece, 0]) <= config.inlier_tolerance_m
+    on &= labels[lower_piece] == point_piece[lower]
+    z_piece = np.concatenate([piece, lower_piece[on]])
+    z = np.concatenate([xyz[member, 2], xyz[lower[on], 2]])
+    z_min = np.full(n, np.inf)
+    z_max = np.full(n, -np.inf)
+    np.minimum.at(z_min, z_piece, z)
+    np.maximum.at(z_max, z_piece, z)
+    all_count = np.bincount(z_piece, minlength=n).astype(float)
     # Thinness along the wall: distance of each point to the median offset of its 0.5 m column (a
     # facade's recesses shift whole columns; foliage scatters the points of every column).
     column = np.floor((along - t_min[piece]) / COLUMN_M).astype(np.int64)
@@ -580,7 +590,8 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
     col_median = _group_median(col, offset, int(col.max()) + 1)
     a = mean + t_min[:, None] * u
     b = mean + t_max[:, None] * u
-    return PieceMeasures(a=a, b=b, count=count, z_mean=np.bincount(piece, z, n) / safe, z_min=z_min, z_max=z_max,
+    return PieceMeasures(a=a, b=b, count=count, n_points=all_count, z_mean=np.bincount(z_piece, z, n) / np.maximum(all_count, 1),
+                         z_min=z_min, z_max=z_max,
                          rms=np.sqrt(np.bincount(piece, offset ** 2, n) / safe),
                          core=np.bincount(piece, np.abs(offset - col_median[col]) <= config.core_m, n) / safe,
                          behind=_points_behind(cells, a, b, config) / safe)
@@ -635,7 +646,7 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
         return ScanSegments.empty()
     sel = sel[np.lexsort((m.a[sel, 1], m.a[sel, 0]))]
     return ScanSegments(segments=np.column_stack([m.a[sel], m.b[sel]]), z_mean=m.z_mean[sel],
-                        n_points=m.count[sel].astype(np.int64), z_min=m.z_min[sel], z_max=m.z_max[sel],
+                        n_points=m.n_points[sel].astype(np.int64), z_min=m.z_min[sel], z_max=m.z_max[sel],
                         rms=m.rms[sel])
 
 

@@ -52,6 +52,8 @@ def test_facade_at_20_m_seen_only_to_2_5_m_is_one_segment_within_5_cm():
     assert np.abs(seg[[0, 2]] - 20).max() < 0.05
     assert sorted(seg[[1, 3]]) == pytest.approx([-10, 10], abs=0.3)
     assert result.rms[0] == pytest.approx(0.02, abs=0.01)
+    assert result.z_min[0] < -1.2 and result.z_max[0] == pytest.approx(20 * np.tan(np.deg2rad(2.0)), abs=0.1)
+    assert result.n_points[0] > 1000
 
 
 def test_fences_cars_vans_and_trees_are_not_walls():
