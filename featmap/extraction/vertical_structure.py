@@ -14,8 +14,9 @@ wall's points away. One pass, no randomness:
    ``cell_m`` cells; a cell is a candidate when its highest return is at least ``cell_min_top_m``
    up (this drops curbs, low bushes and the lower half of cars, not a wall seen behind them).
 4. **Lines of cells**: every candidate cell votes, with its neighbours (within ``link_radius_m``,
-   or within ``link_azimuth_deg`` and ``link_radial_m`` as seen from the sensor, which reaches the
-   sparse samples of far walls and of walls seen at grazing incidence), for its dominant direction; two cells are linked when both have a line
+   or within ``link_azimuth_steps`` of the scan's azimuth steps and ``link_radial_m`` as seen from the
+   sensor, which reaches the sparse samples of far walls and of walls seen at grazing incidence), for
+   its dominant direction; two cells are linked when both have a line
    through them, the lines agree within ``link_angle_deg`` and each cell lies within
    ``line_tolerance_m`` of the other's line. Connected cells form a line piece, so a hedge, a car
    or a tree next to a wall does not bend it, and walls meeting at a corner stay apart.
@@ -65,7 +66,8 @@ class VerticalStructureConfig(BaseModel):
     cell_min_top_m: float = Field(1.2, ge=0, description="a cell takes part when its highest return is this far above the ground")
     line_min_height_m: float = Field(1.0, ge=0, description="only returns this high above the ground place the lines (a car or bush in front of a wall does not pull it)")
     link_radius_m: float = Field(0.45, gt=0, description="cells this close are neighbours ...")
-    link_azimuth_deg: float = Field(0.6, gt=0, description="... and so are cells seen this close in azimuth (a few of the sensor's azimuth steps) ...")
+    link_azimuth_steps: float = Field(3.33, ge=0, description="... and so are cells seen within this many of the scan's azimuth steps (measured from its returns) ...")
+    link_azimuth_deg: float = Field(0.6, gt=0, description="... (or within this azimuth when the step cannot be measured; 0 steps = always) ...")
     link_radial_m: float = Field(2.0, gt=0, description="... that are this close in range (far walls, walls seen at grazing incidence)")
     link_angle_deg: float = Field(10.0, gt=0, le=90, description="linked cells' line directions differ by at most this")
     line_tolerance_m: float = Field(0.08, gt=0, description="a linked cell lies this close to its neighbour's line")
@@ -81,7 +83,9 @@ class VerticalStructureConfig(BaseModel):
     core_m: float = Field(0.05, gt=0, description="... and at least min_core_fraction of them lie this close to the median of their 0.5 m column ...")
     min_core_fraction: float = Field(0.65, ge=0, le=1, description="... (foliage scatters its returns evenly; a facade's recesses shift whole columns), and ...")
     max_behind: float = Field(1.0, ge=0, description="... at most this many returns per wall return lie up to 1 m behind it (a wall hides what is behind it; foliage does not)")
-    min_span_m: float = Field(0.8, ge=0, description="a wall's returns span at least this much in height")
+    min_span_m: float = Field(0.8, ge=0, description="a wall's returns span at least this much in height ...")
+    max_bottom_m: float = Field(2.0, ge=0, description="... and reach down to this height above the ground (plus one of the scan's beam spacings at its range) or lower: a tree crown floats, a wall's base is hidden at most by a car or a fence")
+    elevation_step_deg: float = Field(0.5, ge=0, description="the sensor's beam spacing near the horizon, when it cannot be measured from the scan")
     min_top_m: float = Field(1.5, ge=0, description="a wall reaches at least this high above the local ground, and ...")
     tall_m: float = Field(2.3, ge=0, description="... is hit by the scan's top beam, or is this high (taller than vans, fences, hedges), ...")
     long_m: float = Field(6.0, ge=0, description="... or is at least this long (longer than a vehicle) ...")
@@ -448,6 +452,47 @@ def merge_collinear(cells: Cells, members: np.ndarray, piece: np.ndarray, config
 
 # --- stage 6: walls -------------------------------------------------------------------------------------
 
+def azimuth_step_deg(xyz: np.ndarray) -> float | None:
+    """The scan's azimuth step (degrees) measured from its (N, 3) returns, or None.
+
+    Returns beyond 10 m are grouped by elevation in 0.02 deg bins (one laser each, mostly); in each of
+    the five fullest bins the median angle between azimuth-neighbours is a step estimate (a missed
+    return doubles one gap, two lasers in one bin halve them); the smallest estimate is taken.
+    """
+    rng = np.hypot(xyz[:, 0], xyz[:, 1])
+    far = rng > 10.0
+    if far.sum() < 200:
+        return None
+    elevation = np.degrees(np.arctan2(xyz[far, 2], rng[far]))
+    azimuth = np.degrees(np.arctan2(xyz[far, 1], xyz[far, 0]))
+    b = np.floor(elevation / 0.02).astype(np.int64)
+    b -= b.min()
+    estimates = []
+    for ring in np.argsort(np.bincount(b))[-5:]:
+        gaps = np.diff(np.sort(azimuth[b == ring]))
+        gaps = gaps[(gaps > 1e-4) & (gaps < 3.0)]
+        if len(gaps) >= 20:
+            estimates.append(float(np.median(gaps)))
+    return min(estimates) if estimates else None
+
+
+def elevation_step_deg(xyz: np.ndarray, azimuth_step: float) -> float | None:
+    """The scan's typical beam spacing (degrees) from its (N, 3) returns beyond 15 m, or None: the
+    median elevation difference of returns that follow each other in elevation within one azimuth
+    step (every eighth azimuth bin is enough)."""
+    rng = np.hypot(xyz[:, 0], xyz[:, 1])
+    far = np.flatnonzero(rng > 15.0)
+    az_bin = np.floor((np.arctan2(xyz[far, 1], xyz[far, 0]) + np.pi) / np.deg2rad(azimuth_step)).astype(np.int64)
+    far, az_bin = far[az_bin % 8 == 0], az_bin[az_bin % 8 == 0]
+    if len(far) < 200:
+        return None
+    elevation = np.arctan2(xyz[far, 2], rng[far])
+    order = np.lexsort((elevation, az_bin))
+    gaps = np.diff(elevation[order])
+    gaps = gaps[(az_bin[order][1:] == az_bin[order][:-1]) & (gaps > np.deg2rad(0.05)) & (gaps < np.deg2rad(5.0))]
+    return float(np.degrees(np.median(gaps))) if len(gaps) >= 20 else None
+
+
 def top_beam_tangent(xyz: np.ndarray, config: VerticalStructureConfig) -> float:
     """tan of the scan's top-beam elevation: the ``top_beam_quantile`` of z / range over returns beyond 3 m."""
     rng = np.hypot(xyz[:, 0], xyz[:, 1])
@@ -498,9 +543,14 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     reaches_top = np.bincount(col_piece, reaching, n) >= 0.5 * np.bincount(col_piece, minlength=n)
     bottom = np.full(n, np.inf)
     np.minimum.at(bottom, piece, cells.bottom[members])
+    # How far each cell's lowest return may float: max_bottom_m plus one beam spacing at its range
+    # (a far wall's lowest returns can be a beam apart, and the lowest of them counts as ground).
+    spacing = np.hypot(cells.centroid[members, 0], cells.centroid[members, 1]) * np.tan(np.deg2rad(config.elevation_step_deg))
+    floats = np.full(n, np.inf)
+    np.minimum.at(floats, piece, cells.bottom[members] - spacing)
     length = np.hypot(*(b - a).T)
     ok = (count >= config.min_points) & (length >= config.min_length_m) & (np.sqrt(msd) <= config.max_rms_m)
-    ok &= (top - bottom >= config.min_span_m) & (top >= config.min_top_m)
+    ok &= (top - bottom >= config.min_span_m) & (top >= config.min_top_m) & (floats <= config.max_bottom_m)
     ok &= reaches_top | (top >= config.tall_m) | ((length >= config.long_m) & (top >= config.long_min_top_m))
     out[members] = np.where(ok[piece], piece, -1)
     return out
@@ -675,6 +725,13 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
         return ScanSegments.empty()
     height = heights_above_local_ground(xyz, config)
     tan_top = top_beam_tangent(xyz, config)
+    step = azimuth_step_deg(xyz) if config.link_azimuth_steps > 0 else None
+    if step is not None:                       # later stages see the scan's own sampling
+        update = {"link_azimuth_deg": config.link_azimuth_steps * step}
+        beams = elevation_step_deg(xyz, step)
+        if beams is not None:
+            update["elevation_step_deg"] = beams
+        config = config.model_copy(update=update)
     clock.lap("ground")
     above = height > config.ground_margin_m
     xyz, height = xyz[above], height[above]
