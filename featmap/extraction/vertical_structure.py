@@ -563,7 +563,8 @@ class PieceMeasures:
     Attributes:
         a, b: (n, 2) ends (extreme projections of the inliers on their TLS line).
         count: (n,) inlier points at least ``line_min_height_m`` up (they place the line);
-        n_points: (n,) inliers of any height; z_mean, z_min, z_max: (n,) their heights (velodyne frame).
+        n_points: (n,) inliers of any height; z_min, z_max: (n,) their height range (velodyne frame);
+        z_mean: (n,) mean height of the ``count`` returns (where the line holds).
         rms: (n,) rms distance of the inliers to the line.
         core: (n,) share of inliers within ``core_m`` of the median offset of their 0.5 m column.
         behind: (n,) non-ground points up to ``BEHIND_M`` behind the line (seen from the sensor), per inlier.
@@ -640,7 +641,9 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
     col_median = _group_median(col, offset, int(col.max()) + 1)
     a = mean + t_min[:, None] * u
     b = mean + t_max[:, None] * u
-    return PieceMeasures(a=a, b=b, count=count, n_points=all_count, z_mean=np.bincount(z_piece, z, n) / np.maximum(all_count, 1),
+    # z_mean: the height at which the line was fitted (the mean of the returns that placed it), where
+    # segments_to_world lifts it; with a tilted sensor another height would shift the wall sideways.
+    return PieceMeasures(a=a, b=b, count=count, n_points=all_count, z_mean=np.bincount(piece, xyz[member, 2], n) / safe,
                          z_min=z_min, z_max=z_max,
                          rms=np.sqrt(np.bincount(piece, offset ** 2, n) / safe),
                          core=np.bincount(piece, np.abs(offset - col_median[col]) <= config.core_m, n) / safe,
