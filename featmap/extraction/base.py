@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, fields
 from typing import Any, Callable
 
@@ -127,3 +128,17 @@ def world_fields(scan_segments: ScanSegments, T_world_sensor: np.ndarray) -> dic
     z_off = T_world_sensor[2, 3]
     return {"n_points": scan_segments.n_points, "z_min": scan_segments.z_min + z_off,
             "z_max": scan_segments.z_max + z_off, "rms": scan_segments.rms}
+
+
+class StageClock:
+    """Adds the seconds since the previous lap to ``timings[stage]`` (no-op when timings is None)."""
+
+    def __init__(self, timings: dict[str, float] | None):
+        self.timings = timings
+        self.last = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        if self.timings is not None:
+            now = time.perf_counter()
+            self.timings[stage] = self.timings.get(stage, 0.0) + now - self.last
+            self.last = now

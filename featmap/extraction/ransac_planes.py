@@ -25,7 +25,7 @@ import numpy as np
 from pydantic import Field
 
 from featmap.config import Section
-from featmap.extraction.base import Extractor, ScanSegments
+from featmap.extraction.base import Extractor, ScanSegments, StageClock
 from featmap.geometry import fit_line_tls
 
 
@@ -143,7 +143,7 @@ def extract_segments(points: np.ndarray, config: RansacPlanesConfig = RansacPlan
 def _extract(points: np.ndarray, config: RansacPlanesConfig, timings: dict[str, float] | None) -> ScanSegments:
     import open3d as o3d
 
-    clock = _StageClock(timings)
+    clock = StageClock(timings)
     o3d.utility.random.seed(int(config.seed))
     xyz = crop(points, config)
     clock.lap("crop")
@@ -196,23 +196,6 @@ def _extract(points: np.ndarray, config: RansacPlanesConfig, timings: dict[str, 
     arr = np.asarray(rows, float)
     return ScanSegments(segments=arr[:, :4], z_mean=arr[:, 4], n_points=arr[:, 5].astype(np.int64),
                         z_min=arr[:, 6], z_max=arr[:, 7], rms=arr[:, 8])
-
-
-class _StageClock:
-    """Adds the seconds since the previous lap to ``timings[stage]`` (no-op when timings is None)."""
-
-    def __init__(self, timings: dict[str, float] | None):
-        import time
-
-        self._now = time.perf_counter
-        self.timings = timings
-        self.last = self._now()
-
-    def lap(self, stage: str) -> None:
-        if self.timings is not None:
-            now = self._now()
-            self.timings[stage] = self.timings.get(stage, 0.0) + now - self.last
-            self.last = now
 
 
 EXTRACTOR = Extractor(name="ransac_planes", dimension=3, config_type=RansacPlanesConfig, extract=extract_segments,

@@ -14,12 +14,12 @@ from pydantic import Field, create_model
 
 from featmap.config import Section
 from featmap.errors import ConfigError
-from featmap.extraction import lines_2d, ransac_planes
+from featmap.extraction import lines_2d, ransac_planes, vertical_structure
 from featmap.extraction.base import Extractor, ScanSegments
 
-EXTRACTORS: tuple[Extractor, ...] = (ransac_planes.EXTRACTOR, lines_2d.EXTRACTOR)
+EXTRACTORS: tuple[Extractor, ...] = (vertical_structure.EXTRACTOR, ransac_planes.EXTRACTOR, lines_2d.EXTRACTOR)
 EXTRACTOR_BY_NAME: dict[str, Extractor] = {e.name: e for e in EXTRACTORS}
-DEFAULT_BY_DIMENSION = {3: "ransac_planes", 2: "lines_2d"}
+DEFAULT_BY_DIMENSION = {3: "vertical_structure", 2: "lines_2d"}
 
 
 def _names(dimension: int) -> tuple[str, ...]:

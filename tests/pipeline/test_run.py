@@ -61,8 +61,9 @@ def test_refusing_never_reextracts_and_an_interrupted_run_resumes(run_case1, tmp
     third = run_case1().metrics
     assert third.scans.extracted_now == 3
     assert third.segments == first.segments
-    # a different extraction config is a different cache
-    fourth = run_case1(["extraction.ransac_planes.max_gap_m=2.0"]).metrics
+    # the settings of the extractor in use are part of the key; another extractor's are not
+    assert run_case1(["extraction.ransac_planes.max_gap_m=2.0"]).metrics.scans.extracted_now == 0
+    fourth = run_case1(["extraction.vertical_structure.max_gap_m=2.0"]).metrics
     assert fourth.scans.extracted_now == 40
 
 
@@ -149,6 +150,6 @@ def test_cli_evaluate_against_footprints(run_case1, case1_drive, tmp_path):
 def test_footprints_from_the_config_score_a_run(run_case1, case1_drive, tmp_path):
     footprints = case1_drive.drive_dir / "truth" / "footprints.geojson"
     metrics = run_case1([f"evaluation.footprints={footprints}"]).metrics
-    assert metrics.primary == "truth" and set(metrics.references) == {"truth", "footprints"}
+    assert metrics.primary == "truth" and set(metrics.references) == {"truth", "footprints", "map"}
     fp = metrics.methods["proposed"].scores["footprints"]
     assert fp["observable_walls"] == 4 and fp["precision"] > 0.95

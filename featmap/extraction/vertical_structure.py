@@ -1,0 +1,751 @@
+"""Walls of one LiDAR scan from its vertical structure (``extraction.method_3d: vertical_structure``).
+
+A wall is a thin, straight line in the top view whose points rise high above the ground next to
+it. The scan is never searched for planes, so no ground slab, car roof or tree crown can take a
+wall's points away. One pass, no randomness:
+
+1. **Crop** (velodyne frame): returns within ``min_range_m`` .. ``max_range_m``. The upper limit is
+   the sensor's, not an accuracy crop: far walls are kept or dropped by their sampling (step 6).
+2. **Local ground**: the lowest return of each ``ground_cell_m`` cell (returns far below their
+   neighbours' are outliers), lowered where a nearby cell's ground plus a slope of at most
+   ``ground_max_slope`` is lower (a wall's base hidden behind a fence takes the road's height).
+   Heights are measured from this, so sloped roads, curbs and embankments need no global plane.
+3. **Structure cells**: returns more than ``ground_margin_m`` above the ground are binned in
+   ``cell_m`` cells; a cell is a candidate when its highest return is at least ``cell_min_top_m``
+   up (this drops curbs, low bushes and the lower half of cars, not a wall seen behind them).
+4. **Lines of cells**: every candidate cell votes, with its neighbours (within ``link_radius_m``,
+   or within ``link_azimuth_steps`` of the scan's azimuth steps and ``link_radial_m`` as seen from the
+   sensor, which reaches the sparse samples of far walls and of walls seen at grazing incidence), for
+   its dominant direction; two cells are linked when both have a line
+   through them, the lines agree within ``link_angle_deg`` and each cell lies within
+   ``line_tolerance_m`` of the other's line. Connected cells form a line piece, so a hedge, a car
+   or a tree next to a wall does not bend it, and walls meeting at a corner stay apart.
+5. **Pieces**: a total-least-squares line through each group's returns; returns farther than
+   ``inlier_tolerance_m`` from it are dropped, the rest is cut where it leaves a gap longer than
+   ``max_gap_m``; pieces on one line with ends less than ``merge_gap_m`` apart are joined.
+6. **Walls**: a piece is a wall when it has ``min_points`` returns, ``min_length_m`` of length,
+   ``max_rms_m`` of spread about its line at most, spans ``min_span_m`` in height, reaches
+   ``min_top_m`` above the local ground, and is tall in one of three ways: it is hit by the scan's
+   top beam (half of its 0.5 m columns within ``envelope_margin_deg`` of it), or it is ``tall_m``
+   high, or it is ``long_m`` long and ``long_min_top_m`` high. Heights are the median over the
+   columns, so a tree crown over a fence does not lift it. A facade at 20 m is seen only up to
+   ~2.5 m by an HDL-64 (upper beam +2 deg), but it is hit by the top beam; a 1.5 m car never is,
+   nor is a 2 m van at 11 m, which is also too short to pass as a boundary wall.
+
+Numpy in, numpy out; the same scan always gives the same segments (no random sampling).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from pydantic import Field
+
+from featmap.config import Section
+from featmap.errors import FeatmapError
+from featmap.extraction.base import Extractor, ScanSegments, StageClock
+
+
+class VerticalStructureConfig(Section):
+    """Wall extraction from vertical structure (velodyne frame, metres)."""
+
+    min_range_m: float = Field(2.5, ge=0, description="drop returns closer than this (vehicle body)")
+    max_range_m: float = Field(120.0, gt=0, description="drop returns farther than this (the sensor's range; far walls are judged by their sampling)")
+    ground_cell_m: float = Field(2.0, gt=0, description="cell of the local ground (lowest return per cell)")
+    ground_max_slope: float = Field(0.1, ge=0, description="the ground rises at most this much per metre away from a cell (rise/run)")
+    ground_reach_m: float = Field(12.0, ge=0, description="... over at most this distance (fills cells whose ground is hidden)")
+    ground_outlier_m: float = Field(1.0, gt=0, description="a cell whose lowest return is this far below its neighbours' median is an outlier")
+    ground_margin_m: float = Field(0.25, ge=0, description="returns this close above the local ground are ground")
+    cell_m: float = Field(0.15, gt=0, description="top-view cell of the structure grid")
+    cell_min_top_m: float = Field(1.2, ge=0, description="a cell takes part when its highest return is this far above the ground")
+    line_min_height_m: float = Field(1.0, ge=0, description="only returns this high above the ground place the lines (a car or bush in front of a wall does not pull it)")
+    link_radius_m: float = Field(0.45, gt=0, description="cells this close are neighbours ...")
+    link_azimuth_steps: float = Field(3.33, ge=0, description="... and so are cells seen within this many of the scan's azimuth steps (measured from its returns) ...")
+    link_azimuth_deg: float = Field(0.6, gt=0, description="... (or within this azimuth when the step cannot be measured; 0 steps = always) ...")
+    link_radial_m: float = Field(2.0, gt=0, description="... that are this close in range (far walls, walls seen at grazing incidence)")
+    link_angle_deg: float = Field(10.0, gt=0, le=90, description="linked cells' line directions differ by at most this")
+    line_tolerance_m: float = Field(0.08, gt=0, description="a linked cell lies this close to its neighbour's line")
+    min_support: int = Field(2, ge=1, description="a cell has a line through it when this many neighbours lie on it")
+    inlier_tolerance_m: float = Field(0.15, gt=0, description="returns farther than this from a piece's line are not part of it")
+    max_gap_m: float = Field(1.0, gt=0, description="cut a piece where its returns leave a gap this long")
+    merge_gap_m: float = Field(1.5, ge=0, description="join pieces on one line whose ends are this close")
+    merge_angle_deg: float = Field(3.0, ge=0, le=90, description="... whose directions differ by at most this")
+    merge_offset_m: float = Field(0.12, ge=0, description="... and whose midpoints lie this close to the other's line")
+    min_points: int = Field(20, ge=2, description="a wall has at least this many returns")
+    min_length_m: float = Field(1.0, ge=0, description="a wall is at least this long")
+    max_rms_m: float = Field(0.08, gt=0, description="a wall's returns spread at most this much about its line (rms) ...")
+    core_m: float = Field(0.05, gt=0, description="... and at least min_core_fraction of them lie this close to the median of their 0.5 m column ...")
+    min_core_fraction: float = Field(0.65, ge=0, le=1, description="... (foliage scatters its returns evenly; a facade's recesses shift whole columns), and ...")
+    max_behind: float = Field(1.0, ge=0, description="... at most this many returns per wall return lie up to 1 m behind it (a wall hides what is behind it; foliage does not)")
+    min_span_m: float = Field(0.8, ge=0, description="a wall's returns span at least this much in height ...")
+    max_bottom_m: float = Field(2.0, ge=0, description="... and reach down to this height above the ground (plus one of the scan's beam spacings at its range) or lower: a tree crown floats, a wall's base is hidden at most by a car or a fence")
+    elevation_step_deg: float = Field(0.5, ge=0, description="the sensor's beam spacing near the horizon, when it cannot be measured from the scan")
+    min_top_m: float = Field(1.5, ge=0, description="a wall reaches at least this high above the local ground, and ...")
+    tall_m: float = Field(2.3, ge=0, description="... is hit by the scan's top beam, or is this high (taller than vans, fences, hedges), ...")
+    long_m: float = Field(6.0, ge=0, description="... or is at least this long (longer than a vehicle) ...")
+    long_min_top_m: float = Field(1.8, ge=0, description="... and this high (a garden or boundary wall; taller than cars and fences)")
+    envelope_margin_m: float = Field(0.15, ge=0, description="reaching the top beam = a return this close below it ...")
+    envelope_margin_deg: float = Field(0.3, ge=0, description="... or within this elevation of it (far away)")
+    top_beam_quantile: float = Field(0.999, gt=0, le=1, description="the scan's top beam = this quantile of its returns' elevation angles")
+
+
+COLUMN_M = 0.5
+"""Length of the columns along a wall in which its height is judged (metres)."""
+MAX_TILT_DEG = 15.0
+"""Largest lean of a wall (or tilt of the sensor) taken out of its spread (degrees)."""
+BEHIND_M = 1.0
+"""How far behind a wall's line returns count as seen through it (metres) ..."""
+BEHIND_MAX_HEIGHT_M = 1.8
+"""... if they are at most this high above the ground (a tree crown behind a low wall does not count)."""
+SEEN_OVER_M = 0.5
+"""A return this much farther away than a structure, and higher, was seen over it (metres)."""
+
+
+# --- stage 0: input -------------------------------------------------------------------------------------
+
+def validated_xyz(points) -> np.ndarray:
+    """(N, 3) float64 x, y, z of an (N, >=3) point array; a one-line FeatmapError for anything else."""
+    arr = np.asarray(points)
+    if arr.ndim != 2 or arr.shape[1] < 3:
+        raise FeatmapError(f"scan points: expected an (N, 3) or (N, 4) array, got shape {arr.shape}")
+    if not np.issubdtype(arr.dtype, np.number):
+        raise FeatmapError(f"scan points: expected numbers, got {arr.dtype}")
+    xyz = arr[:, :3].astype(np.float64)
+    finite = np.isfinite(xyz).all(axis=1)
+    if not finite.all():
+        raise FeatmapError(f"scan points: {int((~finite).sum())} point(s) with NaN or inf coordinates")
+    return xyz
+
+
+# --- stage 2: local ground ------------------------------------------------------------------------------
+
+def heights_above_local_ground(xyz: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """(N,) height of each (N, 3) point above the local ground under it (metres).
+
+    The ground of a ``ground_cell_m`` cell is its lowest return; a cell whose lowest return lies more
+    than ``ground_outlier_m`` below the median of its 3 x 3 neighbourhood (a stray return under the
+    road) takes that median instead. The ground may then rise at most ``ground_max_slope`` away from
+    any cell, up to ``ground_reach_m``: a cell with no visible ground (a wall's base hidden behind a
+    fence or a car, a car's own cell) takes the road next to it plus that slope, while a sloped road
+    keeps its own lowest returns.
+    """
+    from scipy import ndimage
+
+    if len(xyz) == 0:
+        return np.zeros(0)
+    cell = config.ground_cell_m
+    ix = np.floor(xyz[:, 0] / cell).astype(np.int64)
+    iy = np.floor(xyz[:, 1] / cell).astype(np.int64)
+    ix -= ix.min()
+    iy -= iy.min()
+    nx, ny = int(ix.max()) + 1, int(iy.max()) + 1
+    flat = ix * ny + iy
+    big = np.finfo(float).max / 4                           # an empty cell (finite, so sums stay finite)
+    ground = np.full(nx * ny, big)
+    np.minimum.at(ground, flat, xyz[:, 2])
+    ground = ground.reshape(nx, ny)
+    median = ndimage.median_filter(ground, size=3, mode="nearest")
+    outlier = (median < big) & (ground < median - config.ground_outlier_m)
+    ground[outlier] = median[outlier]
+    rise = config.ground_max_slope * cell * np.array([[np.sqrt(2), 1, np.sqrt(2)], [1, 0, 1], [np.sqrt(2), 1, np.sqrt(2)]])
+    for _ in range(int(np.ceil(config.ground_reach_m / cell))):
+        ground = ndimage.grey_erosion(ground, structure=-rise, mode="nearest")
+    return xyz[:, 2] - ground.ravel()[flat]
+
+
+# --- stage 3: structure cells ---------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Cells:
+    """Candidate cells and what the later stages need of their points (C cells, M non-ground points).
+
+    Attributes:
+        point_cell: (M,) each point's candidate cell, or -1.
+        count: (C,) points per cell at least ``line_min_height_m`` high (the ones that place lines).
+        centroid: (C, 2) mean x, y of those points.
+        scatter: (C, 3) sums of dx*dx, dx*dy, dy*dy about the centroid (for exact line fits of groups).
+        top, bottom: (C,) highest and lowest point above the local ground.
+        reaches_top: (C,) a point of the cell is hit by (within the envelope margins of) the top beam,
+            and the sensor does not see over the cell.
+        grid_keys, grid_counts, grid_origin: every cell (sorted keys) with non-ground points at most
+            ``BEHIND_MAX_HEIGHT_M`` high, and how many, to count such points anywhere (``points_at``).
+    """
+
+    point_cell: np.ndarray
+    count: np.ndarray
+    centroid: np.ndarray
+    scatter: np.ndarray
+    top: np.ndarray
+    bottom: np.ndarray
+    reaches_top: np.ndarray
+    grid_keys: np.ndarray
+    grid_counts: np.ndarray
+    grid_origin: tuple
+
+    def points_at(self, xy: np.ndarray) -> np.ndarray:
+        """(K,) low non-ground points in the ``cell_m`` cell under each (K, 2) position."""
+        size, i0, j0, width = self.grid_origin[0], self.grid_origin[1], self.grid_origin[2], self.grid_origin[3]
+        ci = np.floor(xy[:, 0] / size).astype(np.int64) - i0
+        cj = np.floor(xy[:, 1] / size).astype(np.int64) - j0
+        key = ci * width + cj
+        valid = (cj >= 0) & (cj < width) & (ci >= 0)
+        pos = np.minimum(np.searchsorted(self.grid_keys, key), len(self.grid_keys) - 1)
+        return np.where(valid & (self.grid_keys[pos] == key), self.grid_counts[pos], 0)
+
+    def __len__(self) -> int:
+        return len(self.count)
+
+
+def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config: VerticalStructureConfig) -> Cells:
+    """Group (M, 3) non-ground points (``height`` (M,) above the local ground) into ``cell_m`` cells and
+    keep the cells whose highest point is at least ``cell_min_top_m`` up. The cells' positions and
+    line moments come from their points at least ``line_min_height_m`` up; heights from all."""
+    ci = np.floor(xyz[:, 0] / config.cell_m).astype(np.int64)
+    cj = np.floor(xyz[:, 1] / config.cell_m).astype(np.int64)
+    i0, j0, width = int(ci.min()), int(cj.min()), int(cj.max() - cj.min()) + 1
+    key = (ci - i0) * width + (cj - j0)
+    _, cell = np.unique(key, return_inverse=True)
+    grid_keys, grid_counts = np.unique(key[height <= BEHIND_MAX_HEIGHT_M], return_counts=True)
+    n_all = int(cell.max()) + 1
+    top = np.full(n_all, -np.inf)
+    np.maximum.at(top, cell, height)
+    candidate = top >= max(config.cell_min_top_m, config.line_min_height_m)
+    renumber = np.full(n_all, -1)
+    renumber[candidate] = np.arange(int(candidate.sum()))
+    point_cell = renumber[cell]
+    n = int(candidate.sum())
+    inside = np.flatnonzero(point_cell >= 0)
+    bottom = np.full(n, np.inf)
+    np.minimum.at(bottom, point_cell[inside], height[inside])
+    upper = inside[height[inside] >= config.line_min_height_m]
+    c = point_cell[upper]
+    x, y = xyz[upper, 0], xyz[upper, 1]
+    count = np.bincount(c, minlength=n).astype(float)
+    centroid = np.column_stack([np.bincount(c, x, n), np.bincount(c, y, n)]) / np.maximum(count, 1)[:, None]
+    dx, dy = x - centroid[c, 0], y - centroid[c, 1]
+    scatter = np.column_stack([np.bincount(c, dx * dx, n), np.bincount(c, dx * dy, n), np.bincount(c, dy * dy, n)])
+    # How close each cell comes to the top beam: the largest z - range * tan(top beam) (<= 0 below it),
+    # and whether the sensor sees over it (a higher return farther away in the same direction).
+    rng = np.hypot(x, y)
+    reach = np.full(n, -np.inf)
+    np.maximum.at(reach, c, xyz[upper, 2] - rng * tan_top)
+    slope = np.full(n, -np.inf)
+    np.maximum.at(slope, c, xyz[upper, 2] / np.maximum(rng, 1e-9))
+    cell_range = np.hypot(centroid[:, 0], centroid[:, 1])
+    margin = np.maximum(config.envelope_margin_m, cell_range * np.tan(np.deg2rad(config.envelope_margin_deg)))
+    over_slope, over_range, az_bin = highest_returns(xyz, tan_top, config)
+    b = az_bin(centroid)
+    seen_over = (over_slope[b] > slope + 1e-4) & (over_range[b] > cell_range + SEEN_OVER_M)
+    return Cells(point_cell, count, centroid, scatter, top[candidate], bottom, (reach >= -margin) & ~seen_over,
+                 grid_keys, grid_counts, (config.cell_m, i0, j0, width))
+
+
+def highest_returns(xyz: np.ndarray, tan_top: float, config: VerticalStructureConfig):
+    """The highest return in each ``link_azimuth_deg / 2`` azimuth bin, among returns near the top beam.
+
+    Returns (slope (B,) largest z / range per bin (-inf: none), range (B,) of that return, a function
+    mapping (K, 2) x, y to their bin numbers (K,)). A structure whose bin holds a higher return farther
+    away does not stop the top beams: the sensor sees over it (a van, a hedge, a garden wall).
+    """
+    width = np.deg2rad(config.link_azimuth_deg) / 2
+    n_bins = int(np.ceil(2 * np.pi / width))
+
+    def az_bin(xy: np.ndarray) -> np.ndarray:
+        return np.minimum(((np.arctan2(xy[:, 1], xy[:, 0]) + np.pi) / width).astype(np.int64), n_bins - 1)
+
+    rng = np.hypot(xyz[:, 0], xyz[:, 1])
+    slope = xyz[:, 2] / np.maximum(rng, 1e-9)
+    high = np.flatnonzero(slope >= np.tan(np.arctan(tan_top) - np.deg2rad(2.0)))
+    bins = az_bin(xyz[high, :2])
+    best = np.full(n_bins, -np.inf)
+    np.maximum.at(best, bins, slope[high])
+    at_best = slope[high] >= best[bins]
+    best_range = np.zeros(n_bins)
+    best_range[bins[at_best]] = rng[high][at_best]
+    return best, best_range, az_bin
+
+
+# --- stage 4: lines of cells ----------------------------------------------------------------------------
+
+def neighbour_pairs(centroids: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """(P, 2) index pairs i < j of neighbouring cells (C, 2): closer than ``link_radius_m``, or seen
+    within ``link_azimuth_deg`` of each other from the sensor and less than ``link_radial_m`` apart in
+    range. The second kind links the samples of far walls and of walls seen at grazing incidence,
+    which lie a few azimuth steps apart but can be metres apart on the ground.
+    """
+    return _close_pairs(centroids, config.link_radius_m, config)
+
+
+def _close_pairs(points: np.ndarray, radius: float, config: VerticalStructureConfig) -> np.ndarray:
+    """(P, 2) index pairs i < j of (K, 2) points closer than ``radius`` or close as seen from the sensor
+    (within ``link_azimuth_deg`` in azimuth and ``link_radial_m`` in range)."""
+    from scipy.spatial import cKDTree
+
+    near = cKDTree(points).query_pairs(radius, output_type="ndarray")
+    # Azimuth as a point on a circle of radius 1 / (azimuth scale): chord ~ angle for small angles.
+    rng = np.hypot(points[:, 0], points[:, 1])
+    unit = points / np.maximum(rng, 1e-9)[:, None] / np.deg2rad(config.link_azimuth_deg)
+    angular = cKDTree(np.column_stack([unit, rng / config.link_radial_m])).query_pairs(1.0, output_type="ndarray")
+    apart = np.hypot(*(points[angular[:, 0]] - points[angular[:, 1]]).T) > radius
+    return np.concatenate([near, angular[apart]]).astype(np.int64).reshape(-1, 2)
+
+
+def link_cells(centroids: np.ndarray, weights: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """(C,) line-piece label of each candidate cell (-1: no line through it).
+
+    Each cell's direction is the dominant direction towards its neighbours (a weighted vote over
+    5 degree bins), refined by a principal-axis fit to the neighbours within ``line_tolerance_m``
+    of it. Linked cells (see the module docstring) are grouped by connected components.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(centroids)
+    pairs = neighbour_pairs(centroids, config)
+    if n < 2 or len(pairs) == 0:
+        return np.full(n, -1)
+    p, q = pairs[:, 0], pairs[:, 1]
+    d = centroids[q] - centroids[p]                          # one entry per undirected pair
+    bins = 36
+    b = (np.mod(np.arctan2(d[:, 1], d[:, 0]), np.pi) * (bins / np.pi)).astype(np.int64)
+    b = np.minimum(b, bins - 1)
+    votes = (np.bincount(p * bins + b, weights=weights[q], minlength=n * bins)
+             + np.bincount(q * bins + b, weights=weights[p], minlength=n * bins)).reshape(n, bins)
+    votes += 0.5 * (np.roll(votes, 1, axis=1) + np.roll(votes, -1, axis=1))
+    theta = (np.argmax(votes, axis=1) + 0.5) * (np.pi / bins)
+    normal = np.column_stack([-np.sin(theta), np.cos(theta)])
+    # Refine each direction by a weighted principal axis of the neighbours on its dominant line
+    # (moments about the cell itself; a pair seen from its other end has the opposite offset).
+    tol = config.line_tolerance_m
+    at_p = np.abs(d[:, 0] * normal[p, 0] + d[:, 1] * normal[p, 1]) <= tol
+    at_q = np.abs(d[:, 0] * normal[q, 0] + d[:, 1] * normal[q, 1]) <= tol
+    owner = np.concatenate([p[at_p], q[at_q]])
+    w = np.concatenate([weights[q[at_p]], weights[p[at_q]]])
+    dd = np.concatenate([d[at_p], -d[at_q]])
+    total = np.bincount(owner, w, n) + weights
+    mx = np.bincount(owner, w * dd[:, 0], n) / total
+    my = np.bincount(owner, w * dd[:, 1], n) / total
+    sxx = np.bincount(owner, w * dd[:, 0] ** 2, n) / total - mx ** 2
+    syy = np.bincount(owner, w * dd[:, 1] ** 2, n) / total - my ** 2
+    sxy = np.bincount(owner, w * dd[:, 0] * dd[:, 1], n) / total - mx * my
+    theta = 0.5 * np.arctan2(2 * sxy, sxx - syy)
+    direction = np.column_stack([np.cos(theta), np.sin(theta)])
+    normal = np.column_stack([-direction[:, 1], direction[:, 0]])
+    has_line = np.bincount(owner, minlength=n) >= config.min_support
+    linked = has_line[p] & has_line[q]
+    linked &= np.abs((direction[p] * direction[q]).sum(1)) >= np.cos(np.deg2rad(config.link_angle_deg))
+    linked &= np.abs((d * normal[p]).sum(1)) <= tol
+    linked &= np.abs((d * normal[q]).sum(1)) <= tol
+    graph = coo_matrix((np.ones(int(linked.sum())), (p[linked], q[linked])), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    labels[~has_line] = -1
+    return labels
+
+
+# --- stage 5: pieces (on cells) ------------------------------------------------------------------------
+
+def _group_lines(label: np.ndarray, cells: Cells, members: np.ndarray, n: int):
+    """Exact TLS lines of groups of cells from their moments (parallel-axis theorem).
+
+    ``members`` (K,) cell indices with ``label`` (K,) group numbers < n. Returns centroids (n, 2),
+    unit directions (n, 2), point counts (n,) and mean squared distances of the points to the line (n,).
+    """
+    w = cells.count[members]
+    c = cells.centroid[members]
+    total = np.bincount(label, w, n)
+    safe = np.maximum(total, 1)
+    mean = np.column_stack([np.bincount(label, w * c[:, 0], n), np.bincount(label, w * c[:, 1], n)]) / safe[:, None]
+    d = c - mean[label]
+    sc = cells.scatter[members]
+    sxx = np.bincount(label, sc[:, 0] + w * d[:, 0] ** 2, n)
+    sxy = np.bincount(label, sc[:, 1] + w * d[:, 0] * d[:, 1], n)
+    syy = np.bincount(label, sc[:, 2] + w * d[:, 1] ** 2, n)
+    theta = 0.5 * np.arctan2(2 * sxy, sxx - syy)
+    direction = np.column_stack([np.cos(theta), np.sin(theta)])
+    # Scatter across the line: the smaller eigenvalue of the 2 x 2 scatter matrix.
+    across = 0.5 * (sxx + syy) - np.sqrt(0.25 * (sxx - syy) ** 2 + sxy ** 2)
+    return mean, direction, total, np.maximum(across, 0) / safe
+
+
+def _azimuth_gap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle (rad) between the directions of (K, 2) points a and b as seen from the sensor."""
+    return np.abs(np.angle((a[:, 0] + 1j * a[:, 1]) * np.conj(b[:, 0] + 1j * b[:, 1])))
+
+
+def cell_pieces(cells: Cells, group: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """(C,) piece label of each candidate cell from its line group (``group``, -1 = none); -1 = none.
+
+    Each group's line is fitted to its points; cells whose centroid lies farther than
+    ``inlier_tolerance_m`` from it are dropped; the rest is cut where consecutive cells along the line
+    are more than ``max_gap_m`` apart *and* more than ``link_azimuth_deg`` apart as seen from the
+    sensor (a far or grazing wall's samples are sparse, not gapped); each piece is refitted, cleaned
+    the same way, and collinear pieces whose ends are close are joined.
+    """
+    label = np.full(len(cells), -1)
+    members = np.flatnonzero(group >= 0)
+    if len(members) == 0:
+        return label
+    _, grp = np.unique(group[members], return_inverse=True)
+    for _ in range(2):
+        n = int(grp.max()) + 1
+        mean, direction, _, _ = _group_lines(grp, cells, members, n)
+        rel = cells.centroid[members] - mean[grp]
+        offset = rel[:, 0] * direction[grp, 1] - rel[:, 1] * direction[grp, 0]
+        keep = np.abs(offset) <= config.inlier_tolerance_m
+        members, grp = members[keep], grp[keep]
+        if len(members) == 0:
+            return label
+        along = (rel[keep] * direction[grp]).sum(1)
+        order = np.lexsort((along, grp))
+        members, grp, along = members[order], grp[order], along[order]
+        c = cells.centroid[members]
+        new = np.ones(len(members), bool)
+        gap = (np.diff(along) > config.max_gap_m) & (_azimuth_gap(c[1:], c[:-1]) > np.deg2rad(config.link_azimuth_deg))
+        new[1:] = (grp[1:] != grp[:-1]) | gap
+        grp = np.cumsum(new) - 1
+    label[members] = merge_collinear(cells, members, grp, config)
+    return label
+
+
+def _piece_ends(cells: Cells, members: np.ndarray, label: np.ndarray, n: int):
+    """Lines and end points (from cell centroids) of pieces: mean, direction, count, msd, a (n, 2), b (n, 2)."""
+    mean, direction, count, msd = _group_lines(label, cells, members, n)
+    along = ((cells.centroid[members] - mean[label]) * direction[label]).sum(1)
+    t_min = np.full(n, np.inf)
+    t_max = np.full(n, -np.inf)
+    np.minimum.at(t_min, label, along)
+    np.maximum.at(t_max, label, along)
+    return mean, direction, count, msd, mean + t_min[:, None] * direction, mean + t_max[:, None] * direction, along
+
+
+def merge_collinear(cells: Cells, members: np.ndarray, piece: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """Join pieces (labels ``piece`` of cells ``members``) of one line whose ends are close: within
+    ``merge_gap_m``, or within ``link_azimuth_deg`` and ``link_radial_m`` as seen from the sensor.
+    Returns the new (K,) labels."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = int(piece.max()) + 1
+    if n < 2 or config.merge_gap_m <= 0:
+        return piece
+    _, u, _, _, a, b, _ = _piece_ends(cells, members, piece, n)
+    ends = np.concatenate([a, b])
+    pairs = _close_pairs(ends, config.merge_gap_m, config)
+    i, j = pairs[:, 0] % n, pairs[:, 1] % n
+    i, j = i[i != j], j[i != j]
+    normal = np.column_stack([-u[:, 1], u[:, 0]])
+    mid = (a + b) / 2
+    dm = mid[j] - mid[i]
+    ok = np.abs((u[i] * u[j]).sum(1)) >= np.cos(np.deg2rad(config.merge_angle_deg))
+    ok &= np.abs((dm * normal[i]).sum(1)) <= config.merge_offset_m
+    ok &= np.abs((dm * normal[j]).sum(1)) <= config.merge_offset_m
+    graph = coo_matrix((np.ones(int(ok.sum())), (i[ok], j[ok])), shape=(n, n))
+    _, merged = connected_components(graph, directed=False)
+    return merged[piece]
+
+
+# --- stage 6: walls -------------------------------------------------------------------------------------
+
+def azimuth_step_deg(xyz: np.ndarray) -> float | None:
+    """The scan's azimuth step (degrees) measured from its (N, 3) returns, or None.
+
+    Returns beyond 10 m are grouped by elevation in 0.02 deg bins (one laser each, mostly); in each of
+    the five fullest bins the median angle between azimuth-neighbours is a step estimate (a missed
+    return doubles one gap, two lasers in one bin halve them); the smallest estimate is taken.
+    """
+    rng = np.hypot(xyz[:, 0], xyz[:, 1])
+    far = rng > 10.0
+    if far.sum() < 200:
+        return None
+    elevation = np.degrees(np.arctan2(xyz[far, 2], rng[far]))
+    azimuth = np.degrees(np.arctan2(xyz[far, 1], xyz[far, 0]))
+    b = np.floor(elevation / 0.02).astype(np.int64)
+    b -= b.min()
+    estimates = []
+    for ring in np.argsort(np.bincount(b))[-5:]:
+        gaps = np.diff(np.sort(azimuth[b == ring]))
+        gaps = gaps[(gaps > 1e-4) & (gaps < 3.0)]
+        if len(gaps) >= 20:
+            estimates.append(float(np.median(gaps)))
+    return min(estimates) if estimates else None
+
+
+def elevation_step_deg(xyz: np.ndarray, azimuth_step: float) -> float | None:
+    """The scan's typical beam spacing (degrees) from its (N, 3) returns beyond 15 m, or None: the
+    median elevation difference of returns that follow each other in elevation within one azimuth
+    step (every eighth azimuth bin is enough)."""
+    rng = np.hypot(xyz[:, 0], xyz[:, 1])
+    far = np.flatnonzero(rng > 15.0)
+    az_bin = np.floor((np.arctan2(xyz[far, 1], xyz[far, 0]) + np.pi) / np.deg2rad(azimuth_step)).astype(np.int64)
+    far, az_bin = far[az_bin % 8 == 0], az_bin[az_bin % 8 == 0]
+    if len(far) < 200:
+        return None
+    elevation = np.arctan2(xyz[far, 2], rng[far])
+    order = np.lexsort((elevation, az_bin))
+    gaps = np.diff(elevation[order])
+    gaps = gaps[(az_bin[order][1:] == az_bin[order][:-1]) & (gaps > np.deg2rad(0.05)) & (gaps < np.deg2rad(5.0))]
+    return float(np.degrees(np.median(gaps))) if len(gaps) >= 20 else None
+
+
+def top_beam_tangent(xyz: np.ndarray, config: VerticalStructureConfig) -> float:
+    """tan of the scan's top-beam elevation: the ``top_beam_quantile`` of z / range over returns beyond 3 m."""
+    rng = np.hypot(xyz[:, 0], xyz[:, 1])
+    far = rng > 3.0
+    if not far.any():
+        return np.inf
+    return float(np.quantile(xyz[far, 2] / rng[far], config.top_beam_quantile))
+
+
+def _group_median(group: np.ndarray, value: np.ndarray, n: int) -> np.ndarray:
+    """(n,) median (the upper one of an even count) of ``value`` per ``group`` label; nan for empty groups."""
+    order = np.lexsort((value, group))
+    count = np.bincount(group, minlength=n)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    out = np.full(n, np.nan)
+    has = count > 0
+    out[has] = value[order][start[has] + count[has] // 2]
+    return out
+
+
+def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """(C,) piece label of the cells of pieces that pass every test but the final per-point ones; -1 = none.
+
+    Heights are judged along the piece, in ``COLUMN_M`` columns: its top is the median of its columns'
+    highest points, and it reaches the top beam when at least half of its columns do (within
+    ``envelope_margin_m`` or ``envelope_margin_deg``), so a tree crown hanging over a fence does not
+    make the fence a wall.
+    """
+    out = np.full(len(cells), -1)
+    members = np.flatnonzero(label >= 0)
+    if len(members) == 0:
+        return out
+    _, piece = np.unique(label[members], return_inverse=True)
+    n = int(piece.max()) + 1
+    _, _, count, msd, a, b, along = _piece_ends(cells, members, piece, n)
+    t_min = np.full(n, np.inf)
+    np.minimum.at(t_min, piece, along)
+    column = np.floor((along - t_min[piece]) / COLUMN_M).astype(np.int64)
+    _, col = np.unique(piece * (int(column.max()) + 1) + column, return_inverse=True)
+    n_col = int(col.max()) + 1
+    col_piece = np.zeros(n_col, np.int64)
+    col_piece[col] = piece
+    col_top = np.full(n_col, -np.inf)
+    np.maximum.at(col_top, col, cells.top[members])
+    reaching = np.zeros(n_col, bool)
+    np.logical_or.at(reaching, col, cells.reaches_top[members])
+    top = _group_median(col_piece, col_top, n)
+    reaches_top = np.bincount(col_piece, reaching, n) >= 0.5 * np.bincount(col_piece, minlength=n)
+    bottom = np.full(n, np.inf)
+    np.minimum.at(bottom, piece, cells.bottom[members])
+    # How far each cell's lowest return may float: max_bottom_m plus one beam spacing at its range
+    # (a far wall's lowest returns can be a beam apart, and the lowest of them counts as ground).
+    spacing = np.hypot(cells.centroid[members, 0], cells.centroid[members, 1]) * np.tan(np.deg2rad(config.elevation_step_deg))
+    floats = np.full(n, np.inf)
+    np.minimum.at(floats, piece, cells.bottom[members] - spacing)
+    length = np.hypot(*(b - a).T)
+    ok = (count >= config.min_points) & (length >= config.min_length_m) & (np.sqrt(msd) <= config.max_rms_m)
+    ok &= (top - bottom >= config.min_span_m) & (top >= config.min_top_m) & (floats <= config.max_bottom_m)
+    ok &= reaches_top | (top >= config.tall_m) | ((length >= config.long_m) & (top >= config.long_min_top_m))
+    out[members] = np.where(ok[piece], piece, -1)
+    return out
+
+
+@dataclass(frozen=True)
+class PieceMeasures:
+    """What the final tests look at, per piece (n pieces), from the points of each piece's cells.
+
+    Attributes:
+        a, b: (n, 2) ends (extreme projections of the inliers on their TLS line).
+        count: (n,) inlier points at least ``line_min_height_m`` up (they place the line);
+        n_points: (n,) inliers of any height; z_min, z_max: (n,) their height range (velodyne frame);
+        z_mean: (n,) mean height of the ``count`` returns (where the line holds).
+        rms: (n,) rms distance of the inliers to the line.
+        core: (n,) share of inliers within ``core_m`` of the median offset of their 0.5 m column.
+        behind: (n,) non-ground points up to ``BEHIND_M`` behind the line (seen from the sensor), per inlier.
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    count: np.ndarray
+    n_points: np.ndarray
+    z_mean: np.ndarray
+    z_min: np.ndarray
+    z_max: np.ndarray
+    rms: np.ndarray
+    core: np.ndarray
+    behind: np.ndarray
+
+    @property
+    def length(self) -> np.ndarray:
+        return np.hypot(*(self.b - self.a).T)
+
+
+def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.ndarray,
+                   config: VerticalStructureConfig) -> PieceMeasures | None:
+    """Measures of the pieces (``label`` per cell, -1 = none) from the (M, 3) non-ground points ``xyz``
+    (``height`` (M,) above the ground) that ``cells`` was made of. Only points at least
+    ``line_min_height_m`` up and within ``inlier_tolerance_m`` of the piece's line (refitted once
+    after dropping the others) count; distances to the line are taken about its lean (see
+    ``_untilted``). None when no piece is left."""
+    point_piece = np.where(cells.point_cell >= 0, label[np.maximum(cells.point_cell, 0)], -1)
+    low = height < config.line_min_height_m
+    member = np.flatnonzero((point_piece >= 0) & ~low)
+    if len(member) == 0:
+        return None
+    labels, piece = np.unique(point_piece[member], return_inverse=True)
+    n = int(piece.max()) + 1
+    for _ in range(2):
+        pts = xyz[member]
+        count = np.bincount(piece, minlength=n).astype(float)
+        safe = np.maximum(count, 1)
+        mean = np.column_stack([np.bincount(piece, pts[:, 0], n), np.bincount(piece, pts[:, 1], n)]) / safe[:, None]
+        dx, dy = pts[:, 0] - mean[piece, 0], pts[:, 1] - mean[piece, 1]
+        theta = 0.5 * np.arctan2(2 * np.bincount(piece, dx * dy, n), np.bincount(piece, dx * dx - dy * dy, n))
+        u = np.column_stack([np.cos(theta), np.sin(theta)])
+        offset = _untilted(dx * u[piece, 1] - dy * u[piece, 0], pts[:, 2], piece, n)
+        keep = np.abs(offset) <= config.inlier_tolerance_m
+        member, piece = member[keep], piece[keep]
+        if len(member) == 0:
+            return None
+    along = dx[keep] * u[piece, 0] + dy[keep] * u[piece, 1]
+    offset = offset[keep]
+    t_min = np.full(n, np.inf)
+    t_max = np.full(n, -np.inf)
+    np.minimum.at(t_min, piece, along)
+    np.maximum.at(t_max, piece, along)
+    count = np.bincount(piece, minlength=n).astype(float)
+    safe = np.maximum(count, 1)
+    # Heights and the number of returns include the piece's lower returns on its line.
+    lower = np.flatnonzero((point_piece >= 0) & low)
+    lower_piece = np.minimum(np.searchsorted(labels, point_piece[lower]), n - 1)
+    rel = xyz[lower, :2] - mean[lower_piece]
+    on = np.abs(rel[:, 0] * u[lower_piece, 1] - rel[:, 1] * u[lower_piece, 0]) <= config.inlier_tolerance_m
+    on &= labels[lower_piece] == point_piece[lower]
+    z_piece = np.concatenate([piece, lower_piece[on]])
+    z = np.concatenate([xyz[member, 2], xyz[lower[on], 2]])
+    z_min = np.full(n, np.inf)
+    z_max = np.full(n, -np.inf)
+    np.minimum.at(z_min, z_piece, z)
+    np.maximum.at(z_max, z_piece, z)
+    all_count = np.bincount(z_piece, minlength=n).astype(float)
+    # Thinness along the wall: distance of each point to the median offset of its 0.5 m column (a
+    # facade's recesses shift whole columns; foliage scatters the points of every column).
+    column = np.floor((along - t_min[piece]) / COLUMN_M).astype(np.int64)
+    _, col = np.unique(piece * (int(column.max()) + 1) + column, return_inverse=True)
+    col_median = _group_median(col, offset, int(col.max()) + 1)
+    a = mean + t_min[:, None] * u
+    b = mean + t_max[:, None] * u
+    # z_mean: the height at which the line was fitted (the mean of the returns that placed it), where
+    # segments_to_world lifts it; with a tilted sensor another height would shift the wall sideways.
+    return PieceMeasures(a=a, b=b, count=count, n_points=all_count, z_mean=np.bincount(piece, xyz[member, 2], n) / safe,
+                         z_min=z_min, z_max=z_max,
+                         rms=np.sqrt(np.bincount(piece, offset ** 2, n) / safe),
+                         core=np.bincount(piece, np.abs(offset - col_median[col]) <= config.core_m, n) / safe,
+                         behind=_points_behind(cells, a, b, config) / safe)
+
+
+def _untilted(offset: np.ndarray, z: np.ndarray, piece: np.ndarray, n: int) -> np.ndarray:
+    """Offsets (K,) from a piece's line minus their linear trend with height (at most ``MAX_TILT_DEG``).
+
+    A wall is vertical in the world, not in the sensor's frame when the vehicle pitches or rolls:
+    a 1 deg tilt moves a 10 m high wall's top 17 cm sideways. The trend is measured about the
+    piece's mean height, so the line itself (through the centroid) stays where it is.
+    """
+    count = np.maximum(np.bincount(piece, minlength=n), 1)
+    dz = z - (np.bincount(piece, z, n) / count)[piece]
+    slope = np.bincount(piece, offset * dz, n) / np.maximum(np.bincount(piece, dz * dz, n), 1e-9)
+    limit = np.tan(np.deg2rad(MAX_TILT_DEG))
+    return offset - np.clip(slope, -limit, limit)[piece] * dz
+
+
+def _points_behind(cells: Cells, a: np.ndarray, b: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """(n,) non-ground points in the band from ``inlier_tolerance_m`` to ``BEHIND_M`` behind each (n, 2)
+    a-b line, on the side away from the sensor (a solid wall hides that band; foliage does not)."""
+    step = cells.grid_origin[0]
+    length = np.hypot(*(b - a).T)
+    u = (b - a) / np.maximum(length, 1e-9)[:, None]
+    away = np.column_stack([-u[:, 1], u[:, 0]])
+    away *= np.where(((a + b) / 2 * away).sum(1) < 0, -1.0, 1.0)[:, None]
+    n_along = np.ceil(length / step).astype(np.int64) + 1
+    offsets = np.arange(config.inlier_tolerance_m + step / 2, BEHIND_M, step)
+    owner = np.repeat(np.arange(len(a)), n_along)
+    t = (np.arange(len(owner)) - np.repeat(np.cumsum(n_along) - n_along, n_along)) * step
+    t = np.minimum(t, np.repeat(length, n_along))
+    base = a[owner] + t[:, None] * u[owner]
+    owner = np.repeat(owner, len(offsets))
+    xy = np.repeat(base, len(offsets), axis=0) + np.tile(offsets, len(base))[:, None] * away[owner]
+    # Count each grid cell once per line.
+    size, i0, j0, width = cells.grid_origin
+    key = (np.floor(xy[:, 0] / size).astype(np.int64) - i0) * width + (np.floor(xy[:, 1] / size).astype(np.int64) - j0)
+    _, first = np.unique(owner * (cells.grid_keys.max() + width + 1) + key, return_index=True)
+    return np.bincount(owner[first], cells.points_at(xy[first]), len(a))
+
+
+def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfig) -> ScanSegments:
+    """The pieces that pass the final tests (returns, length, spread, thinness, opacity) as segments."""
+    if measures is None:
+        return ScanSegments.empty()
+    m = measures
+    wall = (m.count >= config.min_points) & (m.length >= config.min_length_m) & (m.rms <= config.max_rms_m)
+    wall &= (m.core >= config.min_core_fraction) & (m.behind <= config.max_behind)
+    sel = np.flatnonzero(wall)
+    if len(sel) == 0:
+        return ScanSegments.empty()
+    sel = sel[np.lexsort((m.a[sel, 1], m.a[sel, 0]))]
+    return ScanSegments(segments=np.column_stack([m.a[sel], m.b[sel]]), z_mean=m.z_mean[sel],
+                        n_points=m.n_points[sel].astype(np.int64), z_min=m.z_min[sel], z_max=m.z_max[sel],
+                        rms=m.rms[sel])
+
+
+# --- the extractor --------------------------------------------------------------------------------------
+
+def extract_vertical_structure(points, config: VerticalStructureConfig = VerticalStructureConfig(),
+                               timings: dict[str, float] | None = None) -> ScanSegments:
+    """Wall segments of one scan from its vertical structure (see the module docstring).
+
+    Args:
+        points: (N, 3) or (N, 4) velodyne-frame points (x forward, y left, z up; metres); any order.
+        config: extraction parameters.
+        timings: if given, seconds spent per stage are added to it (crop, ground, cells, lines,
+            pieces, walls).
+    Returns:
+        ScanSegments in the velodyne frame, sorted by first endpoint (possibly empty).
+    Raises:
+        FeatmapError: points that are not an (N, >=3) numeric array, or with NaN/inf coordinates.
+    """
+    clock = StageClock(timings)
+    xyz = validated_xyz(points)
+    rng = np.hypot(xyz[:, 0], xyz[:, 1])
+    xyz = xyz[(rng >= config.min_range_m) & (rng <= config.max_range_m)]
+    clock.lap("crop")
+    if len(xyz) < config.min_points:
+        return ScanSegments.empty()
+    height = heights_above_local_ground(xyz, config)
+    tan_top = top_beam_tangent(xyz, config)
+    step = azimuth_step_deg(xyz) if config.link_azimuth_steps > 0 else None
+    if step is not None:                       # later stages see the scan's own sampling
+        update = {"link_azimuth_deg": config.link_azimuth_steps * step}
+        beams = elevation_step_deg(xyz, step)
+        if beams is not None:
+            update["elevation_step_deg"] = beams
+        config = config.model_copy(update=update)
+    clock.lap("ground")
+    above = height > config.ground_margin_m
+    xyz, height = xyz[above], height[above]
+    if len(xyz) < config.min_points:
+        return ScanSegments.empty()
+    cells = structure_cells(xyz, height, tan_top, config)
+    clock.lap("cells")
+    group = link_cells(cells.centroid, cells.count, config)
+    clock.lap("lines")
+    label = cell_pieces(cells, group, config)
+    clock.lap("pieces")
+    label = tall_pieces(cells, label, config)
+    result = wall_segments(piece_measures(xyz, height, cells, label, config), config)
+    clock.lap("walls")
+    return replace(result, support_points=cells.centroid)
+
+
+EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,
+                      extract=extract_vertical_structure, version=1)
