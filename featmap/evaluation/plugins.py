@@ -19,7 +19,7 @@ from pydantic import Field
 
 from featmap.config import Section
 from featmap.errors import ConfigError
-from featmap.evaluation.map_metric import TruthFreeConfig, truth_free_metrics
+from featmap.evaluation.map_metric import TruthFreeConfig, map_reference, score_map
 from featmap.evaluation.references import load_simulator_truth, truth_from_footprints
 from featmap.evaluation.truth_metrics import truth_metrics
 from featmap.geo import GeoFrame
@@ -117,11 +117,10 @@ class MapQuality:
     def prepare(self, context: EvaluationContext) -> Reference | None:
         if context.points is None or context.raw_segments is None or not len(context.points):
             return None
-        return Reference((context.points, context.raw_segments, context.config.map), "scan points")
+        return Reference(map_reference(context.points, context.raw_segments, context.config.map), "scan points")
 
     def score(self, reference: Reference, fused: np.ndarray) -> dict:
-        points, raw, config = reference.data
-        return truth_free_metrics(fused, points, raw, config).to_dict()
+        return score_map(fused, reference.data).to_dict()
 
 
 EVALUATORS: tuple[Evaluator, ...] = (SimulatorTruth(), Footprints(), MapQuality())

@@ -13,8 +13,9 @@ from featmap.io.layers import MapLayer
 
 def write_html_map(path: str | Path, layers: list[MapLayer], frame: GeoFrame, trajectory: np.ndarray | None = None,
                    trajectory_color: str = "#e377c2", tiles: str = "OpenStreetMap") -> Path:
-    """Write a self-contained Leaflet map, a toggleable layer each; every feature has a popup with its
-    support (when the layer has one) and length.
+    """Write a self-contained Leaflet map, a toggleable layer each. A layer with support (fused features)
+    draws each feature with a popup of its support and length; a layer without (raw segments, ground
+    truth) is one GeoJSON object.
 
     Args:
         layers: local-frame segments to draw, in order (the first drawn below the others).
@@ -37,11 +38,17 @@ def write_html_map(path: str | Path, layers: list[MapLayer], frame: GeoFrame, tr
         segments = np.asarray(layer.segments, float).reshape(-1, 4)
         la1, lo1 = frame.to_wgs84(segments[:, 0], segments[:, 1])
         la2, lo2 = frame.to_wgs84(segments[:, 2], segments[:, 3])
-        for k in range(len(segments)):
+        if support is None:
+            # Context layers (raw segments, ground truth) can hold tens of thousands of lines: one GeoJSON
+            # object without popups instead of a polyline each keeps the page small and fast to write.
+            lines = [[[float(lo1[k]), float(la1[k])], [float(lo2[k]), float(la2[k])]] for k in range(len(segments))]
+            style = {"color": layer.color, "weight": layer.width, "opacity": 0.9}
+            folium.GeoJson({"type": "Feature", "properties": {},
+                            "geometry": {"type": "MultiLineString", "coordinates": lines}},
+                           style_function=lambda _feature, style=style: style).add_to(group)
+        for k in range(len(segments) if support is not None else 0):
             length = float(np.hypot(*(segments[k, 2:] - segments[k, :2])))
-            text = f"<b>{name}</b> #{k}<br>length {length:.2f} m"
-            if support is not None:
-                text += f"<br>support {int(support[k])} segments"
+            text = f"<b>{name}</b> #{k}<br>length {length:.2f} m<br>support {int(support[k])} segments"
             folium.PolyLine([[float(la1[k]), float(lo1[k])], [float(la2[k]), float(lo2[k])]],
                             color=layer.color, weight=layer.width,
                             opacity=0.9, popup=folium.Popup(text, max_width=250)).add_to(group)

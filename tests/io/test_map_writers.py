@@ -58,8 +58,10 @@ def test_html_map_has_every_layer(tmp_path):
     html = path.read_text()
     for layer in ("proposed", "meanshift", "density", "trajectory", "truth"):   # one named overlay each
         assert f'"{layer}" : feature_group_' in html or f'"{layer}": feature_group_' in html, layer
-    assert html.count("L.polyline") == 4 * 3 + 1
-    for color in ("#595959", "#d62728", "#1f77b4", "#2ca02c"):
+    assert html.count("L.polyline") == 3 * 3 + 1            # fused features and the trajectory: a polyline each
+    for color in ("#d62728", "#1f77b4", "#2ca02c"):
         assert html.count(f'"color": "{color}"') == 3, color
+    # the truth (no support) is one GeoJSON MultiLineString of its three walls, in its colour
+    assert html.count("MultiLineString") == 1 and '"color": "#595959"' in html
     assert "support 4 segments" in html and "length 30.00 m" in html
     assert "L.control.layers" in html
