@@ -238,6 +238,43 @@ def print_report(results: list[WorldResult], methods: list[str], split: str, wal
     console.print(table)
 
 
+def markdown_summary(results: list[WorldResult], methods: list[str], split: str, frames: str | None) -> str:
+    """The summary the README and docs/results.md quote: per-scan extraction and the fused maps per method
+    (mean over the worlds and the worst world)."""
+    import platform
+
+    from featmap.io.markdown import markdown_table
+
+    tot = lambda f: sum(f(r) for r in results)  # noqa: E731
+    share = lambda a, b: a / b if b else None  # noqa: E731
+    cov = [r.segment_coverage for r in results if r.segment_coverage is not None]
+    extraction = markdown_table(
+        ["worlds", "scans", "observations", "observation recall", "50-300 hits", "> 50 m", "segment coverage (mean / min)"],
+        [[len(results), tot(lambda r: r.scans), tot(lambda r: r.n_obs), share(tot(lambda r: r.found), tot(lambda r: r.n_obs)),
+          share(tot(lambda r: r.few[0]), tot(lambda r: r.few[1])), share(tot(lambda r: r.far[0]), tot(lambda r: r.far[1])),
+          f"{np.mean(cov):.3f} / {np.min(cov):.3f}" if cov else "-"]], 3)
+    rows = []
+    for name in methods:
+        vals = {k: [r.methods[name][k] for r in results if r.methods[name][k] is not None]
+                for k in ("precision", "recall", "redundancy", "offset_cm", "corner_err_cm")}
+        gaps = [r.segment_coverage - r.methods[name]["recall"] for r in results
+                if r.segment_coverage is not None and r.methods[name]["recall"] is not None]
+
+        def pair(key, worst, digits):
+            v = vals[key]
+            return f"{np.mean(v):.{digits}f} / {worst(v):.{digits}f}" if v else "-"
+
+        rows.append([name, pair("precision", min, 3), pair("recall", min, 3),
+                     f"{np.mean(gaps):+.3f} / {max(gaps):+.3f}" if gaps else "-", pair("redundancy", max, 2),
+                     pair("offset_cm", max, 2), pair("corner_err_cm", max, 1)])
+    fused = markdown_table(["method", "precision", "recall", "coverage - recall", "redundancy", "offset cm",
+                            "corner cm"], rows)
+    seeds = ", ".join(str(r.seed) for r in results)
+    return (f"{split} worlds (seeds {seeds}; frames {frames or 'all'}; {platform.machine()}, "
+            f"{time.strftime('%Y-%m-%d')}). Per-scan extraction:\n\n{extraction}\n\n"
+            f"Fused maps (default configuration), mean / worst world:\n\n{fused}\n")
+
+
 # --- main --------------------------------------------------------------------------------------------
 
 def main(argv: list[str] | None = None) -> int:
@@ -252,6 +289,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--set", action="append", default=[], dest="overrides", help="config overrides")
     parser.add_argument("--sim-root", type=Path, default=Path("data/sim"), help="where drives are cached")
     parser.add_argument("--json", type=Path, help="also write every number to this JSON file")
+    parser.add_argument("--docs", action="store_true",
+                        help="write the summary into docs/results.md (block generalization_<split>)")
     args = parser.parse_args(argv)
     console = Console(highlight=False, width=None if os.isatty(1) else 200)
     try:
@@ -325,6 +364,14 @@ def _run(args, console: Console) -> int:
                                    scored["far"], scored["covered_m"], scored["observed_m"], scored["segment_coverage"],
                                    len(segments), acc["ms"], acc["points"], scored["methods"]))
     print_report(results, methods, args.split, wall_seconds, workers, console, extracted_now)
+    if args.docs:
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+        from doc_blocks import replace_block
+
+        replace_block(Path(__file__).resolve().parents[1] / "docs" / "results.md", f"generalization_{args.split}",
+                      f"`.venv/bin/python benchmarks/bench_generalization.py --split {args.split} --docs`: "
+                      + markdown_summary(results, methods, args.split, args.frames))
+        console.print(f"wrote the {args.split} summary into docs/results.md")
     if args.json:
         from featmap.io.atomic import atomic_write_text
 

@@ -82,7 +82,7 @@ def main() -> None:
             f"`{config.extraction.method_3d}`); the eye-checked lists and how they were made are in "
             "`tests/extraction/real_scan_walls.yaml`. A wall is found when segments cover >= 90 % of it "
             "(endpoints within 0.5 m). Times are one process on a shared 2-core machine (noisy).\n\n"
-            + table + "\n" + "".join(f"![{Path(r[0]).stem}](figures/real_scans/{Path(r[0]).stem}.png)\n" for r in rows))
+            + "<!-- table:real_scans -->\n" + table + "<!-- /table -->\n\n" + "".join(f"![{Path(r[0]).stem}](figures/real_scans/{Path(r[0]).stem}.png)\n" for r in rows))
     atomic_write_text(ROOT / "docs" / "real_scans.md", text)
 
 
