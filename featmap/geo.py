@@ -72,8 +72,10 @@ class GeoFrame:
 def reproject(points: np.ndarray, src: GeoFrame, dst: GeoFrame) -> np.ndarray:
     """(K, 2) points of the local frame of ``src`` in the local frame of ``dst`` (through WGS84).
 
-    Both frames are pykitti's Mercator frames; the round trip is analytic, so points of one drive land
-    where another drive's frame has them to well below a millimetre. The same origin returns a copy.
+    Both frames are pykitti's Mercator frames; the round trip is analytic, so a point of one drive lands
+    where the other drive's frame puts the same place on earth. Lengths change by the ratio of the two
+    frames' scales, cos(lat0 of dst) / cos(lat0 of src) (2e-5 for origins 100 m apart in latitude at
+    49 deg): each frame is metric only near its own origin. The same origin returns a copy.
     """
     points = np.asarray(points, float).reshape(-1, 2)
     if (src.lat0_deg, src.lon0_deg) == (dst.lat0_deg, dst.lon0_deg):

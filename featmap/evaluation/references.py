@@ -140,11 +140,12 @@ def _union(intervals: list) -> list:
     return out
 
 
-def merge_truths(truths: list[GroundTruth], tol_m: float = 0.01) -> GroundTruth:
+def merge_truths(truths: list[GroundTruth], tol_m: float = 0.05) -> GroundTruth:
     """One ground truth for several drives whose truths are already in one local frame.
 
     A wall of a later truth whose two endpoints lie within ``tol_m`` of a wall of the merged truth (in
-    either order) is that wall: its observed intervals are united and its returns added. Other walls,
+    either order) is that wall (simulated drives of one world agree to about a centimetre after
+    reprojection, as the simulator anchors every drive's geo origin with the world's Mercator scale): its observed intervals are united and its returns added. Other walls,
     fences, cars and poles are appended (fences, cars and poles seen twice only count twice for
     ``precision_any``'s "lies on", which a duplicate does not change).
     """
