@@ -116,7 +116,8 @@ class BatchSpec(BaseModel):
 
 
 def _pydantic_message(exc: ValidationError, path: Path, model: type[BaseModel]) -> str:
-    err = exc.errors()[0]
+    errors = exc.errors()
+    err = next((e for e in errors if e["type"] == "extra_forbidden"), errors[0])   # a typo explains the rest
     loc = [str(p) for p in err["loc"]]
     where = ".".join(loc)
     if len(loc) >= 2 and loc[0] == "drives" and loc[1].isdigit():
@@ -124,6 +125,8 @@ def _pydantic_message(exc: ValidationError, path: Path, model: type[BaseModel]) 
     if err["type"] == "extra_forbidden":
         allowed = DriveEntry.model_fields if loc[0] == "drives" else model.model_fields
         return f"{path}: unknown key '{where}' (allowed: {', '.join(allowed)})"
+    if err["type"] == "missing" and where == "drives":
+        return f"{path}: no 'drives' (a list of drives: world, kitti or dataset + location)"
     msg = err["msg"].removeprefix("Value error, ")
     return f"{path}: {where + ': ' if where else ''}{msg}"
 
@@ -863,13 +866,13 @@ def report_batch(result: BatchResult, reporter: Reporter) -> None:
                   + f" to {Path(s.drives[0].run_dir).parent if s.drives else ''}")
 
 
-def connect(scheduler: str | None, workers: int | None = None):
+def connect(scheduler: str | None, workers: int | None = None, timeout_s: float = 20.0):
     """(client, cluster): a client of the scheduler at ``scheduler`` (cluster None), or of a new LocalCluster."""
     from distributed import Client
 
     if scheduler:
         try:
-            return Client(scheduler, timeout="20s"), None
+            return Client(scheduler, timeout=f"{timeout_s}s"), None
         except (OSError, TimeoutError) as exc:
             raise ConfigError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
     cluster = local_cluster(workers)
