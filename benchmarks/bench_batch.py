@@ -14,6 +14,10 @@ fusion method and writes every output but the PNG overview (which would fetch ma
 - ``batch, N workers``: ``featmap batch`` on a LocalCluster of N single-threaded workers (cluster start
   included), one task per drive.
 
+``CPU s`` is the CPU time of the whole case (this process and its worker processes, which are waited
+for); ``drive CPU s`` the drive tasks' CPU time. On a machine shared with other jobs the wall-clock
+times say how much of the cores we got; the CPU times say whether the batch adds work.
+
 Targets (issue 16): the 2-worker batch within 1.1x of the sequential time on this 2-core machine, near
 linear scaling from 1 to 2 workers, and the critical path (longest simulation -> drive -> merge chain)
 far below the total work, so more workers would keep scaling until the longest drive. The merged map
@@ -47,6 +51,14 @@ def batch_file(folder: Path, cache: Path, frames: str | None) -> Path:
     path = folder / "bench.yaml"
     path.write_text("\n".join(lines) + "\n")
     return path
+
+
+def _cpu_seconds() -> float:
+    """CPU time of this process and its finished children (the process pools' and the LocalCluster's workers)."""
+    import resource
+
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
 
 
 def sequential(folder: Path, frames: str | None, workers: int) -> float:
@@ -95,6 +107,7 @@ def main() -> None:
     for world in WORLDS:
         ensure_simulated_drive(world)                              # not timed
     times: dict[str, list[float]] = {}
+    cpu: dict[str, list[float]] = {}
     last = {}
     with tempfile.TemporaryDirectory(dir=".") as tmp:
         tmp = Path(tmp)
@@ -106,7 +119,9 @@ def main() -> None:
             for name, run in cases:
                 folder = tmp / f"{r}-{''.join(c if c.isalnum() else '_' for c in name)}"
                 folder.mkdir()
+                cpu0 = _cpu_seconds()
                 out = run(folder)
+                cpu.setdefault(name, []).append(_cpu_seconds() - cpu0)
                 seconds, result = (out, None) if isinstance(out, float) else out
                 times.setdefault(name, []).append(seconds)
                 if result is not None:
@@ -116,13 +131,16 @@ def main() -> None:
         console = Console(width=220)
         base = statistics.median(times["sequential, featmap run -j 2"])
         table = Table(title=f"4 drives ({', '.join(WORLDS)}), frames {args.frames or 'all'}; medians of {args.repeats}")
-        for col in ("how", "seconds", "vs sequential -j 2", "work s", "critical path s", "work / critical path"):
+        for col in ("how", "seconds", "vs sequential -j 2", "CPU s", "work s", "drive CPU s", "critical path s",
+                    "work / critical path"):
             table.add_column(col, justify="right" if col != "how" else "left")
         for name, values in times.items():
             res = last.get(name)
             s = res.summary if res is not None else None
             table.add_row(name, f"{statistics.median(values):.1f}", f"{statistics.median(values) / base:.2f}x",
-                          f"{s.work_seconds:.1f}" if s else "", f"{s.critical_path_seconds:.1f}" if s else "",
+                          f"{statistics.median(cpu[name]):.1f}",
+                          f"{s.work_seconds:.1f}" if s else "", f"{s.work_cpu_seconds:.1f}" if s else "",
+                          f"{s.critical_path_seconds:.1f}" if s else "",
                           f"{s.work_seconds / s.critical_path_seconds:.2f}" if s else "")
         console.print(table)
         one = [n for n in times if n.startswith("batch, 1 ")]

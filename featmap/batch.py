@@ -50,7 +50,7 @@ import traceback
 import uuid
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Optional, Union
+from typing import Any, Optional, Union
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -61,7 +61,7 @@ from featmap.datasets import SourceSpec
 from featmap.errors import ConfigError, FeatmapError
 from featmap.io.batch_records import (BatchSummary, DriveKey, DriveRecord, MergedDrive, MergedRecord,
                                       read_drive_key, write_batch_summary, write_drive_key, write_merged_record)
-from featmap.pipeline.config import FeatmapConfig, load_config
+from featmap.pipeline.config import load_config
 from featmap.reporting import NullReporter, RecordingReporter, Reporter
 
 KEY_FILE = "batch.json"
@@ -293,8 +293,9 @@ def plan_batch(path: str | Path, out: str | Path | None = None, config: str | Pa
                 raise ConfigError(f"{path}: drives[{index}] ({name}): {exc}") from None
             drives.append(DriveTask(name, source, cfg.model_dump(mode="json"), methods, str(out / name), cache_dir,
                                     world))
-    try:
-        merge_config = load_config(base, common)
+    presets = {DATASETS[d.spec.kind].preset for d in drives}
+    try:   # the merged map: the batch-level config (or the drives' common preset)
+        merge_config = load_config(base or (presets.pop() if len(presets) == 1 else None), common)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
     if spec.scan_tasks:
@@ -419,7 +420,8 @@ def _is_up_to_date(out: Path, key: DriveKey) -> bool:
         return False
 
 
-def _record_from_run(task: DriveTask, status: str, location: str, seconds: float, worker: str | None) -> DriveRecord:
+def _record_from_run(task: DriveTask, status: str, location: str, seconds: float, worker: str | None,
+                     cpu_seconds: float = 0.0) -> DriveRecord:
     from featmap.io.run_metrics import read_run_metrics
 
     m = read_run_metrics(Path(task.out) / "metrics.json")
@@ -428,7 +430,7 @@ def _record_from_run(task: DriveTask, status: str, location: str, seconds: float
                        counts={k: r.count for k, r in m.methods.items()},
                        scores={k: {s: v for s, v in m.primary_scores(k).items() if not isinstance(v, dict)}
                                for k in m.methods},
-                       primary=m.primary, seconds=round(seconds, 3), worker=worker)
+                       primary=m.primary, seconds=round(seconds, 3), cpu_seconds=round(cpu_seconds, 3), worker=worker)
 
 
 def run_drive_task(task: DriveTask, sim: SimOutcome | None = None) -> DriveOutcome:
@@ -442,7 +444,7 @@ def run_drive_task(task: DriveTask, sim: SimOutcome | None = None) -> DriveOutco
     from featmap.pipeline.config import config_from_dict
     from featmap.pipeline.executor import DaskExecutor, SerialExecutor
 
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     reporter = EventReporter(task.topic, task.name)
     worker = _worker_address()
     location = task.spec.location
@@ -474,7 +476,8 @@ def run_drive_task(task: DriveTask, sim: SimOutcome | None = None) -> DriveOutco
         else:
             MappingPipeline(*pipeline_args, SerialExecutor(), reporter, task.spec.skip_bad_scans).run(source, out)
         write_drive_key(out / KEY_FILE, key)
-        record = _record_from_run(task, "done", location, time.perf_counter() - start, worker)
+        record = _record_from_run(task, "done", location, time.perf_counter() - start, worker,
+                                  time.process_time() - cpu_start)
         return DriveOutcome(record, reporter.warnings)
     except Exception as exc:
         detail = None if isinstance(exc, (FeatmapError, OSError)) else traceback.format_exc()
@@ -799,6 +802,7 @@ def run_batch(plan: BatchPlan, client, reporter: Reporter = NullReporter()) -> B
         workers=int(sum(client.nthreads().values())), drives=records,
         wall_seconds=round(time.perf_counter() - start, 3),
         work_seconds=round(sum(r.seconds for r in records) + sum(sim_seconds.values()) + (merge_seconds or 0.0), 3),
+        work_cpu_seconds=round(sum(r.cpu_seconds for r in records), 3),
         critical_path_seconds=round(max(chains) + (merge_seconds or 0.0), 3), merge_seconds=merge_seconds,
         merged=str(plan.out / MERGED) if merged is not None else None)
     write_batch_summary(plan.out / "summary.json", summary)

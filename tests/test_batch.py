@@ -196,6 +196,31 @@ def test_a_failing_drive_is_reported_and_the_others_finish(first_batch, dask_cli
     assert [d.status for d in read_batch_summary(tmp_path / "out" / "summary.json").drives] == ["skipped", "done"]
 
 
+def test_scans_as_tasks_of_their_own_give_the_same_run(first_batch, dask_client, tiny_worlds, tmp_path):
+    tmp = first_batch[0]
+    drives = f"  - world: {tiny_worlds / 'tiny_b.yaml'}\n"
+    path = write_batch(tmp_path / "b.yaml", tiny_worlds, tmp / "data" / "sim", tmp_path / "cache", drives,
+                       extra="scan_tasks: true\nmerge: false\n")
+    result = run_batch(plan_batch(path, tmp_path / "out"), dask_client, RecordingReporter())
+    assert result.summary.drives[0].status == "done" and result.merged is None
+    assert not (tmp_path / "out" / "merged").exists()
+    same_run(tmp_path / "out" / "tiny_b", tmp / "out" / "tiny_b")
+
+
+def test_the_example_batch_names_two_builtin_drives_over_shared_streets():
+    from featmap.simulation.worlds import load_world
+
+    plan = plan_batch(ROOT / "configs" / "batch_example.yaml")
+    assert [d.name for d in plan.drives] == ["residential", "residential_cross"] and plan.merge
+    assert plan.out.parts[-3:] == ("runs", "batch", "example")
+    routes = [np.asarray(load_world(d.name).route.waypoints) for d in plan.drives]
+    # two of the cross route's legs run along the default route's streets (x = 170 and y = 110)
+    shared = [leg for leg in zip(routes[1][:-1], routes[1][1:])
+              if any(np.allclose(sorted(map(tuple, leg)), sorted(map(tuple, other)))
+                     for other in zip(routes[0][:-1], routes[0][1:]))]
+    assert len(shared) == 2
+
+
 def test_sweep_over_a_batch_on_the_dask_client_matches_local(first_batch, dask_client, tmp_path):
     from featmap.pipeline.executor import DaskExecutor, SerialExecutor
     from featmap.sweep import run_sweep_file
@@ -272,3 +297,27 @@ def test_a_batch_on_a_real_scheduler_and_workers(first_batch, tiny_worlds, real_
     for method in METHODS:
         assert (tmp_path / "out" / "merged" / f"fused_{method}.csv").read_bytes() == \
             (tmp / "out" / "merged" / f"fused_{method}.csv").read_bytes()
+
+
+def test_drives_without_a_geo_origin_merge_only_within_one_log(first_batch, dask_client, tiny_worlds, tmp_path):
+    """Two halves of one indoor log share its frame; among drives with a geo origin it cannot be placed."""
+    from tests.pipeline.test_presets import _write_log
+
+    tmp = first_batch[0]
+    log = tmp_path / "room.log"
+    _write_log(log, np.random.default_rng(0))
+    halves = (f"  - dataset: carmen\n    location: {log}\n    frames: '0:30'\n    name: room_a\n"
+              f"  - dataset: carmen\n    location: {log}\n    frames: '30:60'\n    name: room_b\n")
+    path = write_batch(tmp_path / "b.yaml", tiny_worlds, tmp / "data" / "sim", tmp / "cache", halves)
+    result = run_batch(plan_batch(path, tmp_path / "out"), dask_client, RecordingReporter())
+    merged = result.merged
+    assert [d.name for d in merged.drives] == ["room_a", "room_b"] and merged.geo_frame is None
+    assert merged.counts["proposed"] >= 5 and merged.multi_drive["proposed"] >= 3   # the room's walls, seen by both
+    plan = plan_batch(path)
+    assert plan.merge_config == plan.drives[0].config            # fused with the drives' common preset (indoor_2d)
+    with_geo = write_batch(tmp_path / "c.yaml", tiny_worlds, tmp / "data" / "sim", tmp / "cache",
+                           f"  - world: {tiny_worlds / 'tiny.yaml'}\n" + halves)
+    result = run_batch(plan_batch(with_geo, tmp_path / "out2"), dask_client, RecordingReporter())
+    assert [d.name for d in result.merged.drives] == ["tiny"]
+    assert set(result.merged.left_out) == {"room_a", "room_b"}
+    assert "no geo origin" in result.merged.left_out["room_a"]

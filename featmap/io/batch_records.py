@@ -50,6 +50,7 @@ class DriveRecord(_Model):
     scores: dict[str, dict[str, Score]] = Field(default_factory=dict, description="method -> primary scores")
     primary: Optional[str] = None
     seconds: float = Field(0.0, description="wall-clock time of the drive's task (0 when skipped)")
+    cpu_seconds: float = Field(0.0, description="CPU time of the worker process during the task")
     simulation_seconds: float = Field(0.0, description="time of the simulation task it waited for (first use)")
     worker: Optional[str] = None
 
@@ -63,6 +64,8 @@ class BatchSummary(_Model):
     drives: list[DriveRecord]
     wall_seconds: float
     work_seconds: float = Field(description="sum of the tasks' times (simulation, drives, merge)")
+    work_cpu_seconds: float = Field(0.0, description="sum of the drive tasks' CPU times (the work without waiting "
+                                                     "for a core shared with other processes)")
     critical_path_seconds: float = Field(description="longest chain of dependent tasks: simulation -> drive -> merge")
     merge_seconds: Optional[float] = None
     merged: Optional[str] = Field(None, description="the merged map's folder, when one was made")
