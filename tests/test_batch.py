@@ -297,6 +297,13 @@ def test_a_batch_on_a_real_scheduler_and_workers(first_batch, tiny_worlds, real_
     for method in METHODS:
         assert (tmp_path / "out" / "merged" / f"fused_{method}.csv").read_bytes() == \
             (tmp / "out" / "merged" / f"fused_{method}.csv").read_bytes()
+    # a sweep over the batch on the same cluster
+    spec = tmp_path / "s.yaml"
+    spec.write_text(f"batch: {tmp_path / 'out'}\nmethods: [proposed]\ngrid:\n  fusion.proposed.eta_m: [0.3, 0.6]\n")
+    res = runner.invoke(app, ["sweep", str(spec), "--out", str(tmp_path / "sweep"), "--scheduler", address])
+    assert res.exit_code == 0, res.output
+    rows = list(csv.DictReader(open(tmp_path / "sweep" / "sweep.csv")))
+    assert len(rows) == 2 and all(float(r["recall"]) > 0.9 for r in rows)
 
 
 def test_drives_without_a_geo_origin_merge_only_within_one_log(first_batch, dask_client, tiny_worlds, tmp_path):

@@ -112,14 +112,13 @@ class DaskExecutor:
 
     Args:
         client: a connected ``distributed.Client``.
-        window: tasks in flight (None: twice the cluster's worker threads, at least 2).
+        window: tasks in flight (None: twice the cluster's worker threads).
     """
 
     def __init__(self, client, window: int | None = None):
         self.client = client
-        threads = sum(client.nthreads().values()) if window is None else 0
-        self.workers = max(1, threads) if window is None else max(1, window // 2)
-        self.window = window or max(2, 2 * threads)
+        self.workers = max(1, sum(client.nthreads().values()))
+        self.window = window or 2 * self.workers
 
     def imap(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
         pending: deque = deque()
