@@ -171,6 +171,7 @@ def sweep(
     set_: Optional[List[str]] = SetOpt,
     workers: int = WorkersOpt,
     cache_dir: Path = CacheOpt,
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Run the combinations on this Dask scheduler (tcp://HOST:8786) instead of local processes."),
 ):
     """Sweep fusion parameters on cached segments: sweep.csv, heatmaps, curves, Pareto plot, best.yaml."""
     from featmap.pipeline import local_executor
@@ -179,8 +180,19 @@ def sweep(
     spec = load_sweep(sweep_file)
     out = out or Path("runs") / "sweeps" / Path(sweep_file).stem
     reporter = _reporter()
-    with local_executor(workers) as executor:
-        rows, best = run_sweep_file(sweep_file, out, executor, reporter, config, set_ or [], cache_dir)
+    if scheduler:
+        from featmap.batch import connect
+        from featmap.pipeline.executor import DaskExecutor
+
+        client, _ = connect(scheduler)
+        try:
+            reporter.info(f"Dask scheduler {client.scheduler.address}: {sum(client.nthreads().values())} worker threads")
+            rows, best = run_sweep_file(sweep_file, out, DaskExecutor(client), reporter, config, set_ or [], cache_dir)
+        finally:
+            client.close()
+    else:
+        with local_executor(workers) as executor:
+            rows, best = run_sweep_file(sweep_file, out, executor, reporter, config, set_ or [], cache_dir)
     metric = spec.select.metric
     table = []
     for method in spec.methods:
@@ -193,6 +205,37 @@ def sweep(
     reporter.table(f"featmap sweep: {len(rows)} combinations", ["method", "combinations", "best " + metric,
                                                                   "count at best"], table)
     reporter.info(f"wrote sweep.csv, plots{', best.yaml' if best else ''} to {out}")
+
+
+SchedulerOpt = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://HOST:8786 (default: a LocalCluster on this machine).")
+
+
+@command
+def batch(
+    batch_file: Path = typer.Argument(..., help="Batch YAML: drives (world, kitti or dataset + location; globbed), per-drive overrides."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Output folder (default: the file's out, else runs/batch/<file stem>)."),
+    scheduler: Optional[str] = SchedulerOpt,
+    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1, help="LocalCluster worker processes (default: the file's workers, else the cores)."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+):
+    """Run many drives as Dask tasks (one run folder each, resumable) and fuse them into one merged map."""
+    from featmap.batch import connect, plan_batch, run_batch
+
+    plan = plan_batch(batch_file, out, config, set_ or [], scheduler)
+    reporter = _reporter()
+    client, cluster = connect(plan.scheduler, workers or plan.workers)
+    try:
+        reporter.info(f"Dask scheduler {client.scheduler.address}: {sum(client.nthreads().values())} worker threads")
+        result = run_batch(plan, client, reporter)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    if result.failed:
+        typer.echo(f"featmap: {len(result.failed)} of {len(result.summary.drives)} drive(s) failed "
+                   f"(see {plan.out / 'summary.json'})", err=True)
+        raise typer.Exit(code=1)
 
 
 @command

@@ -5,7 +5,8 @@ A sweep file::
     base: configs/default.yaml            # optional (the command's --config/--set apply on top of it)
     input: runs/residential/segments.csv  # a run's segments (its metrics.json gives the reference), or
     drive: default                        # a source: default (the simulated residential drive),
-    #   drive: 2011_09_30_drive_0018 (+ data_dir, frames), or dataset: NAME + location: PATH
+    #   drive: 2011_09_30_drive_0018 (+ data_dir, frames), or dataset: NAME + location: PATH, or
+    #   batch: runs/batch/example           # a finished batch's merged segments (scored against its drives' truths)
     truth: path/to/truth_or_footprints    # optional; found from the run's metrics.json otherwise
     methods: [proposed, meanshift]
     grid:
@@ -89,6 +90,7 @@ class SweepSpec(BaseModel):
     base: Optional[str] = None
     input: Optional[str] = None
     drive: Optional[str] = None
+    batch: Optional[str] = None
     data_dir: str = "data/kitti"
     dataset: Optional[str] = None
     location: Optional[str] = None
@@ -102,9 +104,10 @@ class SweepSpec(BaseModel):
 
     @model_validator(mode="after")
     def _check(self):
-        given = [k for k in ("input", "drive", "dataset") if getattr(self, k) is not None]
+        given = [k for k in ("input", "drive", "dataset", "batch") if getattr(self, k) is not None]
         if len(given) != 1:
-            raise ValueError("give exactly one of 'input' (a segments.csv), 'drive' or 'dataset' (+ 'location')")
+            raise ValueError("give exactly one of 'input' (a segments.csv), 'drive', 'dataset' (+ 'location') or "
+                             "'batch' (a batch's output folder)")
         if self.dataset is not None and self.location is None:
             raise ValueError("'dataset' needs a 'location'")
         if not self.grid:
@@ -267,7 +270,8 @@ def run_sweep(combos: list[Combination], configs: dict[str, FeatmapConfig], inpu
         log.write_text(json.dumps({"sweep": identity}) + "\n")
     todo = [c for c in combos if c.key not in done]
     by_key = {c.key: c for c in combos}
-    jobs = ((inputs, c.key, c.method, configs[c.key].model_dump(mode="json")) for c in todo)
+    shared = executor.share(inputs) if todo and hasattr(executor, "share") else inputs   # sent once to a cluster
+    jobs = ((shared, c.key, c.method, configs[c.key].model_dump(mode="json")) for c in todo)
     if todo:
         with open(log, "a") as fh:
             for key, metrics in track(reporter, executor.imap(_evaluate, jobs), len(todo), "sweeping"):
@@ -334,6 +338,8 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
             reference = (ev, ref)
         digest = _digest(Path(spec.input).read_bytes(), str(truth_path).encode())
         return SweepInputs(table.segments, table.scan, reference, digest)
+    if spec.batch is not None:
+        return _batch_inputs(Path(spec.batch))
     if spec.dataset is not None:
         source_spec = SourceSpec(spec.dataset, spec.location, spec.frames)
     elif spec.drive == "default":
@@ -347,6 +353,19 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
     ctx = EvaluationContext(source.location, extraction.frames, source.geo_origin, base.evaluation)
     references = prepare_references(ctx)
     reference = next(iter(references.values()), None)
+    digest = _digest(table.segments.tobytes(), table.scan.tobytes(), str(reference[1].path if reference else "").encode())
+    return SweepInputs(table.segments, table.scan, reference, digest)
+
+
+def _batch_inputs(folder: Path) -> SweepInputs:
+    """A finished batch's merged segments, scored against its drives' truths united (when all have one)."""
+    from featmap.batch import MERGED, merged_inputs, merged_reference
+    from featmap.io.batch_records import read_merged_record
+
+    record = read_merged_record(folder / MERGED / "merged.json")
+    inputs = merged_inputs([(d.name, d.run_dir) for d in record.drives])
+    reference = merged_reference(inputs)
+    table = inputs.table
     digest = _digest(table.segments.tobytes(), table.scan.tobytes(), str(reference[1].path if reference else "").encode())
     return SweepInputs(table.segments, table.scan, reference, digest)
 

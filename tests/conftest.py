@@ -35,3 +35,41 @@ def shared_data(*parts) -> Path:
     if not path.exists():
         pytest.skip(f"{path} not available (../shared/data is optional)")
     return path
+
+
+TINY_WORLD = """name: tiny
+geo_origin: {lat: 49.0100, lon: 8.4200}
+route: {waypoints: [[0, 0], [24, 0]], speed_mps: 8, turn_radius_m: 0}
+objects:
+  - {id: A, kind: building, footprint: [[-5, 6], [15, 6], [15, 16], [-5, 16]], height: 8}
+  - {id: B, kind: building, footprint: [[18, 6], [40, 6], [40, 14], [18, 14]], height: 10}
+  - {id: C, kind: building, footprint: [[0, -16], [30, -16], [30, -7], [0, -7]], height: 9}
+"""
+
+
+@pytest.fixture(scope="session")
+def tiny_worlds(tmp_path_factory) -> Path:
+    """Three 24 m drives along one short street with three buildings (about 30 HDL-64E frames each):
+    ``tiny.yaml`` and two worlds that extend it with other routes (``tiny_b`` driven the other way)."""
+    folder = tmp_path_factory.mktemp("tiny_worlds")
+    (folder / "tiny.yaml").write_text(TINY_WORLD)
+    (folder / "tiny_b.yaml").write_text("name: tiny_b\nextends: tiny.yaml\n"
+                                        "route: {waypoints: [[32, 0], [8, 0]], speed_mps: 8, turn_radius_m: 0}\n")
+    (folder / "tiny_c.yaml").write_text("name: tiny_c\nextends: tiny.yaml\n"
+                                        "route: {waypoints: [[12, 0], [36, 0]], speed_mps: 8, turn_radius_m: 0}\n")
+    return folder
+
+
+@pytest.fixture(scope="session")
+def dask_client():
+    """A LocalCluster of two single-threaded worker processes on 127.0.0.1 (no dashboard), and its client."""
+    pytest.importorskip("distributed")
+    from distributed import Client
+
+    from featmap.batch import local_cluster
+
+    cluster = local_cluster(2)
+    client = Client(cluster)
+    yield client
+    client.close()
+    cluster.close()

@@ -26,3 +26,21 @@ def test_matches_pykitti_projection():
     assert x == pytest.approx(t[0] - t0[0], abs=1e-6) and y == pytest.approx(t[1] - t0[1], abs=1e-6)
     mx, _ = latlon_to_mercator(lat0, lon0, scale)
     assert mx == pytest.approx(t0[0])
+
+
+def test_reproject_moves_points_between_two_drives_frames():
+    from featmap.geo import reproject, reproject_segments
+
+    a = GeoFrame(49.0100, 8.4200)
+    lat, lon = a.to_wgs84(np.array([250.0]), np.array([-120.0]))
+    b = GeoFrame(float(lat[0]), float(lon[0]))         # b's origin is at (250, -120) of a
+    pts = np.array([[250.0, -120.0], [260.0, -100.0], [0.0, 0.0]])
+    moved = reproject(pts, a, b)
+    assert np.abs(moved[0]).max() < 1e-6
+    # lengths change only by the ratio of the two frames' Mercator scales, cos(lat_b) / cos(lat_a)
+    ratio = np.linalg.norm(moved[1] - moved[2]) / np.linalg.norm(pts[1] - pts[2])
+    assert ratio == pytest.approx(b.scale / a.scale, rel=1e-7) and abs(ratio - 1) < 1e-4
+    assert np.abs(reproject(moved, b, a) - pts).max() < 1e-6
+    segs = np.array([[250.0, -120.0, 0.0, 0.0]])
+    assert np.allclose(reproject_segments(segs, a, b), np.r_[moved[0], moved[2]][None])
+    assert np.array_equal(reproject(pts, a, GeoFrame(49.0100, 8.4200, 300.0)), pts)   # same origin: unchanged

@@ -110,12 +110,17 @@ class FrameSource:
 
 @dataclass(frozen=True)
 class SourceSpec:
-    """How to open a source again (e.g. in a batch task): its format, location and options."""
+    """How to open a source again (e.g. in a batch task): its format, location and options.
+
+    ``options`` are keyword arguments of the format's opener beyond the common ones, as (name, value)
+    pairs, e.g. ``(("sim_root", "/data/sim"),)`` for a simulated drive (where it is simulated).
+    """
 
     kind: str
     location: str
     frames: str | None = None
     skip_bad_scans: bool = False
+    options: tuple[tuple[str, str], ...] = ()
 
 
 def parse_frames(text: str | None) -> slice | None:

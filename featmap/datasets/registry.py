@@ -42,4 +42,4 @@ def open_source(spec: SourceSpec, reporter: Reporter = NullReporter()) -> ScanSo
         fmt = DATASETS[spec.kind]
     except KeyError:
         raise DatasetError(f"--dataset {spec.kind!r}: unknown format; allowed: {', '.join(DATASETS)}") from None
-    return fmt.open(spec.location, spec.frames, spec.skip_bad_scans, reporter)
+    return fmt.open(spec.location, spec.frames, spec.skip_bad_scans, reporter, **dict(spec.options))

@@ -39,9 +39,10 @@ def ensure_simulated_drive(world_name: str = DEFAULT_WORLD, sim_root: str | Path
 
 
 def open_world(location: str, frames: str | None = None, skip_bad_scans: bool = False,
-               reporter: Reporter = NullReporter()) -> KittiRawDataset:
-    """The simulated drive of a world (the registry's opener); ``location`` is a world name or file."""
-    data_dir, drive = ensure_simulated_drive(location or DEFAULT_WORLD, reporter=reporter)
+               reporter: Reporter = NullReporter(), sim_root: str | Path = DEFAULT_SIM_ROOT) -> KittiRawDataset:
+    """The simulated drive of a world (the registry's opener); ``location`` is a world name or file, and
+    the drive lives in (or is simulated into) ``sim_root/<world stem>``."""
+    data_dir, drive = ensure_simulated_drive(location or DEFAULT_WORLD, sim_root, reporter=reporter)
     source = KittiRawDataset(data_dir, drive, frames, skip_bad_scans)
     source.name = Path(location or DEFAULT_WORLD).stem
     return source

@@ -127,3 +127,64 @@ def truth_from_footprints(path: str | Path, frame: GeoFrame) -> GroundTruth:
     lengths = np.hypot(walls[:, 2] - walls[:, 0], walls[:, 3] - walls[:, 1])
     return GroundTruth(walls=walls, building=np.asarray(building), labels=np.asarray(labels).reshape(-1, 2),
                        observed=[[(0.0, float(L))] for L in lengths], n_returns=np.full(len(walls), -1))
+
+
+def _union(intervals: list) -> list:
+    """Sorted, merged (start, end) intervals."""
+    out: list = []
+    for a, b in sorted(intervals):
+        if out and a <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], b))
+        else:
+            out.append((a, b))
+    return out
+
+
+def merge_truths(truths: list[GroundTruth], tol_m: float = 0.05) -> GroundTruth:
+    """One ground truth for several drives whose truths are already in one local frame.
+
+    A wall of a later truth whose two endpoints lie within ``tol_m`` of a wall of the merged truth (in
+    either order) is that wall (simulated drives of one world agree to about a centimetre after
+    reprojection, as the simulator anchors every drive's geo origin with the world's Mercator scale): its observed intervals are united and its returns added. Other walls,
+    fences, cars and poles are appended (fences, cars and poles seen twice only count twice for
+    ``precision_any``'s "lies on", which a duplicate does not change).
+    """
+    from scipy.spatial import cKDTree
+
+    if not truths:
+        raise ValueError("merge_truths needs at least one ground truth")
+    first = truths[0]
+    walls = [np.asarray(w, float) for w in first.walls]
+    building, labels = list(first.building), [list(lab) for lab in first.labels]
+    observed = [list(iv) for iv in first.observed]
+    n_returns = list(first.n_returns)
+    other, poles = [first.other_segments], [first.poles]
+    for truth in truths[1:]:
+        tree = cKDTree(np.asarray(walls).reshape(-1, 4)) if walls else None
+        for k, wall in enumerate(np.asarray(truth.walls, float).reshape(-1, 4)):
+            length = float(np.hypot(wall[2] - wall[0], wall[3] - wall[1]))
+            match, flipped = None, False
+            if tree is not None:
+                for candidate, flip in ((wall, False), (np.r_[wall[2:], wall[:2]], True)):
+                    dist, index = tree.query(candidate)
+                    if dist <= tol_m:
+                        match, flipped = int(index), flip
+                        break
+            iv = [(length - b, length - a) for a, b in truth.observed[k]] if flipped else list(truth.observed[k])
+            if match is None:
+                walls.append(wall)
+                building.append(truth.building[k])
+                labels.append(list(truth.labels[k]))
+                observed.append(_union(iv))
+                n_returns.append(int(truth.n_returns[k]))
+            else:
+                observed[match] = _union(observed[match] + iv)
+                a, b = n_returns[match], int(truth.n_returns[k])
+                n_returns[match] = -1 if a < 0 or b < 0 else a + b
+        other.append(truth.other_segments)
+        poles.append(truth.poles)
+    return GroundTruth(walls=np.asarray(walls, float).reshape(-1, 4), building=np.asarray(building),
+                       labels=np.asarray(labels, dtype=str).reshape(-1, 2), observed=observed,
+                       n_returns=np.asarray(n_returns, np.int64),
+                       other_segments=np.concatenate([np.asarray(o, float).reshape(-1, 4) for o in other]),
+                       poles=np.concatenate([np.asarray(p, float).reshape(-1, 3) for p in poles]))

@@ -29,7 +29,11 @@ def write_kml(path: str | Path, layers: list[MapLayer], frame: GeoFrame, traject
     ``trajectory`` (F, 2) local positions becomes a path in its own folder.
     """
     import simplekml
+    from simplekml.base import Kmlable
 
+    # simplekml numbers its elements with a class-wide counter; start it afresh so that the same map
+    # gives the same file however many maps this process wrote before (batch workers write many).
+    Kmlable._globalid = 0
     kml = simplekml.Kml(name="featmap")
     for layer in layers:
         name, support = layer.name, layer.support

@@ -1,7 +1,8 @@
 """``segments.csv`` and ``fused_<method>.csv``: the CSV files of the output contract.
 
 ``segments.csv``: header ``scan,x1,y1,x2,y2`` (+ optional ``n_points,z_min,z_max,rms``), world frame, metres.
-``fused_<method>.csv``: header ``x1,y1,x2,y2,support`` (+ ``length_m``), world frame, metres.
+``fused_<method>.csv``: header ``x1,y1,x2,y2,support`` (+ ``length_m``; a batch's merged map adds ``n_drives``
+and ``drives``, the names of the drives that saw each feature joined by ``;``), world frame, metres.
 Readers check every line and raise a one-line :class:`InputFileError` naming the file and line.
 """
 
@@ -20,6 +21,8 @@ from featmap.io.atomic import atomic_write_text
 
 SEGMENT_COLUMNS = ("scan", "x1", "y1", "x2", "y2")
 FUSED_COLUMNS = ("x1", "y1", "x2", "y2", "support")
+TEXT_COLUMNS = ("drives",)
+"""Columns of a fused CSV that hold text (skipped by the numeric reader)."""
 
 
 @dataclass(frozen=True)
@@ -59,7 +62,8 @@ def write_segments_csv(path: str | Path, table: SegmentTable) -> Path:
     return atomic_write_text(path, buf.getvalue())
 
 
-def _read_numeric_csv(path: Path, required: tuple[str, ...]) -> tuple[list[str], np.ndarray]:
+def _read_numeric_csv(path: Path, required: tuple[str, ...], text_columns: tuple[str, ...] = ()) -> tuple[list[str], np.ndarray]:
+    """(header without the ``text_columns``, their values (rows, columns)); a one-line error per bad cell."""
     try:
         text = path.read_text(encoding="utf-8-sig")      # a BOM (spreadsheets write one) is not part of the header
     except FileNotFoundError:
@@ -74,19 +78,21 @@ def _read_numeric_csv(path: Path, required: tuple[str, ...]) -> tuple[list[str],
     if missing:
         raise InputFileError(path, f"missing column(s) {', '.join(missing)}; the header must contain "
                                    f"{','.join(required)} (found {','.join(header)})", line=1)
-    data = np.empty((len(rows) - 1, len(header)))
+    numeric = [c for c, h in enumerate(header) if h not in text_columns]
+    data = np.empty((len(rows) - 1, len(numeric)))
     for n, row in enumerate(rows[1:], start=2):
         if len(row) != len(header):
             raise InputFileError(path, f"expected {len(header)} values, found {len(row)}", line=n)
-        for c, cell in enumerate(row):
+        for k, c in enumerate(numeric):
+            cell = row[c]
             try:
                 value = float(cell)
             except ValueError:
                 raise InputFileError(path, f"column '{header[c]}': not a number: {cell!r}", line=n) from None
             if not math.isfinite(value):
                 raise InputFileError(path, f"column '{header[c]}': {cell.strip()} is not a finite number", line=n)
-            data[n - 2, c] = value
-    return header, data
+            data[n - 2, k] = value
+    return [header[c] for c in numeric], data
 
 
 def read_segments_csv(path: str | Path) -> SegmentTable:
@@ -110,21 +116,25 @@ def read_segments_csv(path: str | Path) -> SegmentTable:
                         skipped_zero_length=int((~nonzero).sum()), skipped_duplicates=int((nonzero & ~unique).sum()))
 
 
-def write_fused_csv(path: str | Path, segments: np.ndarray, support: np.ndarray) -> Path:
-    """Write ``fused_<method>.csv`` atomically: ``x1,y1,x2,y2,support,length_m``."""
+def write_fused_csv(path: str | Path, segments: np.ndarray, support: np.ndarray,
+                    columns: dict[str, list] | None = None) -> Path:
+    """Write ``fused_<method>.csv`` atomically: ``x1,y1,x2,y2,support,length_m`` (+ ``columns``: name -> one
+    value per feature, written with ``str``; text columns must be named in :data:`TEXT_COLUMNS`)."""
+    columns = columns or {}
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(list(FUSED_COLUMNS) + ["length_m"])
-    for seg, sup in zip(np.asarray(segments).reshape(-1, 4), np.asarray(support)):
+    writer.writerow(list(FUSED_COLUMNS) + ["length_m"] + list(columns))
+    for r, (seg, sup) in enumerate(zip(np.asarray(segments).reshape(-1, 4), np.asarray(support))):
         length = math.hypot(seg[2] - seg[0], seg[3] - seg[1])
-        writer.writerow([repr(float(v)) for v in seg] + [str(int(sup)), f"{length:.3f}"])
+        writer.writerow([repr(float(v)) for v in seg] + [str(int(sup)), f"{length:.3f}"]
+                        + [str(values[r]) for values in columns.values()])
     return atomic_write_text(path, buf.getvalue())
 
 
 def read_fused_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Read a ``fused_<method>.csv``: returns (segments (M, 4), support (M,))."""
     path = Path(path)
-    header, data = _read_numeric_csv(path, ("x1", "y1", "x2", "y2"))
+    header, data = _read_numeric_csv(path, ("x1", "y1", "x2", "y2"), TEXT_COLUMNS)
     col = {h: data[:, k] for k, h in enumerate(header)}
     segments = np.stack([col[c] for c in ("x1", "y1", "x2", "y2")], axis=1) if len(data) else np.zeros((0, 4))
     support = col["support"].astype(np.int64) if "support" in col else np.ones(len(segments), np.int64)

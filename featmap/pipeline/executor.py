@@ -1,9 +1,11 @@
-"""Where per-item work runs: in this process, or on a pool of local processes.
+"""Where per-item work runs: in this process, on a pool of local processes, or on a Dask cluster.
 
 The pipeline and sweeps take an executor instead of starting pools themselves, so the same code runs in
-a notebook, on two local processes, or inside a batch task (where starting a pool is not allowed).
-``imap`` keeps at most ``window`` items in flight, so a long input is never materialised in memory,
-and yields results in the input's order.
+a notebook, on two local processes, on a Dask client, or inside a batch task (where starting a pool is
+not allowed). ``imap`` keeps at most ``window`` items in flight, so a long input is never materialised
+in memory, and yields results in the input's order. ``share(obj)`` returns what to put into the items
+instead of a large object every item uses (the object itself locally; a Dask future, sent once, on a
+cluster).
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ class Executor(Protocol):
 
     def imap(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]: ...
 
+    def share(self, obj: T) -> T: ...
+
 
 class SerialExecutor:
     """Runs every item in this process, one after the other."""
@@ -28,6 +32,9 @@ class SerialExecutor:
 
     def imap(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
         return map(fn, items)
+
+    def share(self, obj: T) -> T:
+        return obj
 
     def close(self) -> None:
         pass
@@ -79,12 +86,61 @@ class ProcessExecutor:
             for future in pending:
                 future.cancel()
 
+    def share(self, obj: T) -> T:
+        return obj
+
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown(cancel_futures=True)
             self._pool = None
 
     def __enter__(self) -> "ProcessExecutor":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class DaskExecutor:
+    """Runs items as tasks on a Dask ``distributed.Client`` (a LocalCluster or a remote scheduler).
+
+    ``imap`` has the contract of the other executors: at most ``window`` tasks in flight (default: two
+    per worker thread of the cluster when it is created), results in the input's order, and the tasks
+    still pending are cancelled when the caller stops early. A task's exception is raised by ``imap``.
+    ``fn`` and the items travel by pickle to the workers, which must import featmap (the same version).
+    The client is the caller's: :meth:`close` does not close it.
+
+    Args:
+        client: a connected ``distributed.Client``.
+        window: tasks in flight (None: twice the cluster's worker threads).
+    """
+
+    def __init__(self, client, window: int | None = None):
+        self.client = client
+        self.workers = max(1, sum(client.nthreads().values()))
+        self.window = window or 2 * self.workers
+
+    def imap(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
+        pending: deque = deque()
+        try:
+            for item in items:
+                pending.append(self.client.submit(fn, item, pure=False))
+                if len(pending) >= self.window:
+                    yield pending.popleft().result()
+            while pending:
+                yield pending.popleft().result()
+        finally:
+            for future in pending:
+                future.cancel()
+
+    def share(self, obj: T) -> T:
+        """A future of ``obj`` held by the cluster: put it into items instead of ``obj`` (sent once, not per task)."""
+        return self.client.scatter(obj, broadcast=False, hash=False)
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self) -> "DaskExecutor":
         return self
 
     def __exit__(self, *exc) -> None:

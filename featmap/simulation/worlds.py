@@ -16,6 +16,14 @@ A world is data, not code. The YAML form (coordinates in metres, x east, y north
     ground: {grade: [0.02, 0.0], curb_height: 0.12,                    # optional; flat z = 0 without it
              streets: [{line: [[-40, -15], [70, -15]], width: 8}]}
 
+Another drive through the same streets is a world that ``extends`` one (a built-in name or a file
+relative to it) with its own ``name`` and ``route``; it takes the base's ``geo_origin``, ``ground``
+and ``objects`` (its own ``objects`` are added)::
+
+    name: residential_east
+    extends: residential
+    route: {waypoints: [[80, -50], [80, 110], [170, 110]], speed_mps: 8, turn_radius_m: 9}
+
 The ground is the plane ``z = grade_x * x + grade_y * y``; with ``streets`` and a ``curb_height``,
 everything outside the streets' carriageways (sidewalks, gardens, building lots) lies
 ``curb_height`` higher, with a vertical curb face along every street edge. Buildings and clutter
@@ -297,28 +305,67 @@ def resolve_world_path(name_or_file: str | Path) -> Path:
                      "or give a .yaml/.geojson file")
 
 
-def load_world(name_or_file: str | Path) -> World:
-    """Load and validate a world by built-in name or file path."""
-    path = resolve_world_path(name_or_file)
+MAX_EXTENDS_DEPTH = 4
+
+
+def _read_world_mapping(path: Path) -> dict:
+    """The raw mapping of a YAML or GeoJSON world file (GeoJSON converted to the YAML form)."""
     try:
         text = path.read_text()
     except OSError as exc:
         raise WorldError(f"{path}: cannot read ({exc.strerror})") from None
     if path.suffix.lower() in (".geojson", ".json"):
         try:
-            data = _world_from_geojson(json.loads(text), str(path))
+            return _world_from_geojson(json.loads(text), str(path))
         except json.JSONDecodeError as exc:
             raise WorldError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg})") from None
         except (KeyError, TypeError, IndexError, ValueError, AttributeError) as exc:
             raise WorldError(f"{path}: malformed GeoJSON feature ({type(exc).__name__}: {exc}); every feature needs "
                              "a geometry with coordinates") from None
-    else:
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            from featmap.config import yaml_error_line
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        from featmap.config import yaml_error_line
 
-            raise WorldError(f"{path}{yaml_error_line(exc)}: not valid YAML") from None
+        raise WorldError(f"{path}{yaml_error_line(exc)}: not valid YAML") from None
+
+
+def _resolve_extends(data, path: Path, seen: tuple[Path, ...] = ()) -> dict:
+    """A world mapping with its ``extends: BASE`` resolved.
+
+    ``BASE`` is a built-in world name or a world file (relative to this file's folder). The world takes
+    the base's ``geo_origin``, ``ground`` and ``objects``; its own ``objects`` are added to the base's,
+    its own ``geo_origin``/``ground`` replace the base's, and it must give its own ``route`` (another
+    drive through the same streets).
+    """
+    if not isinstance(data, dict) or "extends" not in data:
+        return data
+    ref = data["extends"]
+    if not isinstance(ref, str) or not ref:
+        raise WorldError(f"{path}: 'extends' must be a built-in world name or a world file, got {ref!r}")
+    if "route" not in data:
+        raise WorldError(f"{path}: a world that extends {ref!r} needs its own 'route' (the vehicle's waypoints)")
+    local = path.parent / ref
+    base_path = local if local.suffix.lower() in (".yaml", ".yml", ".geojson", ".json") and local.exists() \
+        else resolve_world_path(ref)
+    base_path = base_path.resolve()
+    if base_path in seen or len(seen) >= MAX_EXTENDS_DEPTH:
+        raise WorldError(f"{path}: 'extends: {ref}' makes a cycle or a chain longer than {MAX_EXTENDS_DEPTH}")
+    base = _resolve_extends(_read_world_mapping(base_path), base_path, (*seen, path.resolve()))
+    if not isinstance(base, dict):
+        raise WorldError(f"{base_path}: expected a mapping with name, route and objects (extended by {path})")
+    merged = {k: v for k, v in base.items() if k in ("geo_origin", "ground")}
+    merged.update({k: v for k, v in data.items() if k not in ("extends", "objects")})
+    if not isinstance(data.get("objects") or [], list) or not isinstance(base.get("objects") or [], list):
+        raise WorldError(f"{path}: 'objects' must be a list")
+    merged["objects"] = list(base.get("objects") or []) + list(data.get("objects") or [])
+    return merged
+
+
+def load_world(name_or_file: str | Path) -> World:
+    """Load and validate a world by built-in name or file path (with its ``extends:`` base, if any)."""
+    path = resolve_world_path(name_or_file)
+    data = _resolve_extends(_read_world_mapping(path), path)
     return world_from_dict(data, str(path))
 
 

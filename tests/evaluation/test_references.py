@@ -74,3 +74,23 @@ def test_a_damaged_truth_folder_fails_in_one_line(drive_copy):
     walls.write_text("\n".join(lines[:2] + [lines[2].replace(lines[2].split(",")[3], "nan", 1)]) + "\n")
     with pytest.raises(InputFileError, match=r"walls.csv:3: wall coordinates must be finite"):
         load_simulator_truth(walls.parent)
+
+
+def test_merged_truth_unites_what_each_drive_observed_of_the_same_walls():
+    from featmap.evaluation.references import merge_truths
+    from featmap.evaluation.truth_metrics import GroundTruth
+
+    walls = np.array([[0.0, 0.0, 10.0, 0.0], [10.0, 0.0, 10.0, 8.0]])
+    one = GroundTruth(walls=walls, building=np.array(["A", "A"]), labels=np.full((2, 2), ""),
+                      observed=[[(0.0, 4.0)], []], n_returns=np.array([100, 0]))
+    # the second drive saw the first wall from 3 to 9 m (its endpoints in the other order), the second wall
+    # 0-8 m, and a third wall the first never saw
+    two = GroundTruth(walls=np.array([[10.0, 0.0, 0.0, 0.0005], [10.0, 0.0, 10.0, 8.0], [20.0, 0.0, 30.0, 0.0]]),
+                      building=np.array(["A", "A", "B"]), labels=np.full((3, 2), ""),
+                      observed=[[(1.0, 7.0)], [(0.0, 8.0)], [(0.0, 10.0)]], n_returns=np.array([60, 80, 90]))
+    merged = merge_truths([one, two])
+    assert len(merged.walls) == 3
+    assert np.allclose(merged.observed[0], [(0.0, 9.0)]) and merged.observed[1] == [(0.0, 8.0)]
+    assert merged.n_returns.tolist() == [160, 80, 90]
+    assert merged.observable().tolist() == [True, True, True]
+    assert merge_truths([one]).observed == one.observed

@@ -65,3 +65,12 @@ def test_html_map_has_every_layer(tmp_path):
     assert html.count("MultiLineString") == 1 and '"color": "#595959"' in html
     assert "support 4 segments" in html and "length 30.00 m" in html
     assert "L.control.layers" in html
+
+
+def test_kml_is_the_same_however_many_maps_the_process_wrote_before(tmp_path):
+    """simplekml numbers elements with a class-wide counter: a batch worker writing many maps must still
+    write the bytes a fresh ``featmap run`` writes."""
+    layers = [MapLayer("proposed", SEGS, np.array([1, 2, 3]), "#d62728")]
+    first = write_kml(tmp_path / "a.kml", layers, FRAME).read_bytes()
+    write_kml(tmp_path / "b.kml", layers * 3, FRAME)
+    assert write_kml(tmp_path / "c.kml", layers, FRAME).read_bytes() == first

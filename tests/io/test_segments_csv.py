@@ -52,3 +52,12 @@ def test_zero_length_rows_are_skipped_and_counted(tmp_path):
 def test_missing_file(tmp_path):
     with pytest.raises(InputFileError, match="nope.csv: file not found"):
         read_segments_csv(tmp_path / "nope.csv")
+
+
+def test_fused_csv_with_the_drives_of_a_merged_map_reads_back(tmp_path):
+    segs = np.array([[0.0, 0.0, 3.0, 0.0], [0.0, 1.0, 0.0, 5.0]])
+    write_fused_csv(tmp_path / "f.csv", segs, np.array([7, 2]), {"n_drives": [2, 1], "drives": ["a;b", "b"]})
+    lines = (tmp_path / "f.csv").read_text().splitlines()
+    assert lines[0] == "x1,y1,x2,y2,support,length_m,n_drives,drives" and lines[1].endswith(",2,a;b")
+    back, support = read_fused_csv(tmp_path / "f.csv")
+    assert np.array_equal(back, segs) and support.tolist() == [7, 2]

@@ -65,3 +65,29 @@ def test_malformed_geojson_world_is_one_line(tmp_path):
     path.write_text('{"type": "FeatureCollection", "features": [')
     with pytest.raises(WorldError, match=r"bad.geojson:1: not valid JSON"):
         load_world(path)
+
+
+def test_a_world_extends_another_with_its_own_route(tmp_path):
+    base = load_world("residential")
+    cross = load_world("residential_cross")
+    assert cross.objects == base.objects and cross.geo_origin == base.geo_origin
+    assert cross.route.waypoints[0] == (80.0, -50.0) and cross.name == "residential_cross"
+    (tmp_path / "base.yaml").write_text("name: base\nroute: {waypoints: [[0, 0], [10, 0]]}\ngeo_origin: {lat: 48, lon: 9}\n"
+                                        "objects:\n  - {kind: pole, position: [1, 2]}\n")
+    (tmp_path / "more.yaml").write_text("extends: base.yaml\nroute: {waypoints: [[10, 0], [0, 0]]}\n"
+                                        "objects:\n  - {kind: tree, position: [3, 4]}\n")
+    more = load_world(tmp_path / "more.yaml")
+    assert [o.kind for o in more.objects] == ["pole", "tree"] and more.geo_origin.lat == 48 and more.name == "more"
+
+
+@pytest.mark.parametrize("text,match", [
+    ("extends: base.yaml\n", r"needs its own 'route'"),
+    ("extends: nowhere\nroute: {waypoints: [[0, 0], [1, 0]]}\n", r"unknown world 'nowhere'"),
+    ("extends: loop.yaml\nroute: {waypoints: [[0, 0], [1, 0]]}\n", r"makes a cycle"),
+    ("extends: 3\nroute: {waypoints: [[0, 0], [1, 0]]}\n", r"'extends' must be a built-in world name or a world file"),
+])
+def test_bad_extends_is_one_line(tmp_path, text, match):
+    (tmp_path / "base.yaml").write_text("name: base\nroute: {waypoints: [[0, 0], [10, 0]]}\n")
+    (tmp_path / "loop.yaml").write_text(text)
+    with pytest.raises(WorldError, match=match):
+        load_world(tmp_path / "loop.yaml")

@@ -1,0 +1,882 @@
+"""Many drives: every drive's run as a task on a Dask cluster, a summary, and one merged map.
+
+A batch file (paths relative to the current folder, like ``featmap run`` and sweep files)::
+
+    scheduler: tcp://10.0.0.5:8786   # optional: an existing Dask cluster (--scheduler overrides it);
+                                     # without one, a LocalCluster sized to this machine
+    workers: 2                       # LocalCluster worker processes (default: the machine's cores)
+    out: runs/batch/example          # optional (--out overrides it)
+    config: configs/default.yaml     # base config of every drive (--config replaces it)
+    set: [output.plots=false]        # overrides for every drive (--set adds to them)
+    methods: all                     # or [proposed, density]
+    cache_dir: data/cache            # the segment cache (shared by every drive)
+    sim_root: data/sim               # where simulated drives are simulated on first use
+    merge: true                      # fuse every drive into OUT/merged/
+    scan_tasks: false                # true: each drive's scans are tasks of their own (fewer drives than workers)
+    drives:
+      - world: residential                     # a simulated world (built-in name or file)
+      - world: residential_cross
+        set: [fusion.proposed.eta_m=0.4]       # this drive only
+      - kitti: 2011_09_26_drive_00*            # KITTI raw drives by name (globbed), with data_dir
+        data_dir: data/kitti
+        frames: "0:200"
+      - dataset: carmen                        # any registered format: kind + location (globbed)
+        location: data/carmen/intel.log.gz
+        name: intel                            # run folder name (default: from the source)
+        config: indoor_2d
+
+Each drive runs exactly as ``featmap run`` would run it alone (same source, resolved config, methods
+and cache): the config of a drive is its ``config`` (else ``--config``, else the batch's ``config``,
+else the preset of its format), then the batch's ``set``, ``--set`` and the drive's ``set``. Its run
+folder ``OUT/<name>`` therefore has the same contents as ``featmap run ... --out OUT/<name>``, plus
+``batch.json``: the content key of the run (source identity and data fingerprint, resolved config,
+methods, featmap version). A re-run skips every drive whose key is unchanged. A drive that fails is
+reported in the summary and does not stop the others.
+
+The task graph: one simulation task per simulated world not yet simulated -> one task per drive ->
+one merge task (``OUT/merged/``: every drive's segments in the first drive's local frame, fused
+together, with the drives that saw each feature). ``OUT/summary.json`` records every drive, the
+totals and the graph's critical path.
+"""
+
+from __future__ import annotations
+
+import glob
+import hashlib
+import json
+import os
+import time
+import traceback
+import uuid
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Optional, Union
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from featmap import __version__
+from featmap.config import read_yaml_mapping
+from featmap.datasets import SourceSpec
+from featmap.errors import ConfigError, FeatmapError
+from featmap.io.batch_records import (BatchSummary, DriveKey, DriveRecord, MergedDrive, MergedRecord,
+                                      read_drive_key, write_batch_summary, write_drive_key, write_merged_record)
+from featmap.pipeline.config import load_config
+from featmap.reporting import NullReporter, RecordingReporter, Reporter
+
+KEY_FILE = "batch.json"
+MERGED = "merged"
+GLOB_CHARS = set("*?[")
+
+
+# --- the batch file --------------------------------------------------------------------------------------
+
+class DriveEntry(BaseModel):
+    """One entry of ``drives:`` (a glob may expand to several drives)."""
+
+    model_config = ConfigDict(extra="forbid")
+    world: Optional[str] = Field(None, description="a simulated world: built-in name or file (simulated on first use)")
+    kitti: Optional[str] = Field(None, description="KITTI raw drive name YYYY_MM_DD_drive_NNNN (globbed), with data_dir")
+    data_dir: Optional[str] = Field(None, description="KITTI raw root (default data/kitti)")
+    dataset: Optional[str] = Field(None, description="a registered scan format, with location")
+    location: Optional[str] = Field(None, description="the dataset's folder or file (globbed)")
+    name: Optional[str] = Field(None, description="run folder name (one drive only; default: from the source)")
+    frames: Optional[str] = None
+    skip_bad_scans: bool = False
+    config: Optional[str] = Field(None, description="this drive's base config file or preset")
+    set: list[str] = Field(default_factory=list, description="this drive's --set overrides")
+
+    @model_validator(mode="after")
+    def _check(self):
+        given = [k for k in ("world", "kitti", "dataset") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError("give exactly one of 'world', 'kitti' (+ 'data_dir') or 'dataset' (+ 'location')")
+        if self.dataset is not None and self.location is None:
+            raise ValueError("'dataset' needs a 'location'")
+        if self.location is not None and self.dataset is None:
+            raise ValueError("'location' goes with 'dataset'")
+        if self.data_dir is not None and self.kitti is None:
+            raise ValueError("'data_dir' goes with 'kitti'")
+        return self
+
+
+class BatchSpec(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    scheduler: Optional[str] = None
+    workers: Optional[int] = Field(None, ge=1)
+    out: Optional[str] = None
+    config: Optional[str] = None
+    set: list[str] = Field(default_factory=list)
+    methods: Union[str, list[str]] = "all"
+    cache_dir: str = "data/cache"
+    sim_root: str = "data/sim"
+    merge: bool = True
+    scan_tasks: bool = False
+    drives: list[DriveEntry] = Field(min_length=1)
+
+
+def _pydantic_message(exc: ValidationError, path: Path, model: type[BaseModel]) -> str:
+    errors = exc.errors()
+    err = next((e for e in errors if e["type"] == "extra_forbidden"), errors[0])   # a typo explains the rest
+    loc = [str(p) for p in err["loc"]]
+    where = ".".join(loc)
+    if len(loc) >= 2 and loc[0] == "drives" and loc[1].isdigit():
+        where = f"drives[{loc[1]}]" + ("." + ".".join(loc[2:]) if loc[2:] else "")
+    if err["type"] == "extra_forbidden":
+        allowed = DriveEntry.model_fields if loc[0] == "drives" else model.model_fields
+        return f"{path}: unknown key '{where}' (allowed: {', '.join(allowed)})"
+    if err["type"] == "missing" and where == "drives":
+        return f"{path}: no 'drives' (a list of drives: world, kitti or dataset + location)"
+    msg = err["msg"].removeprefix("Value error, ")
+    return f"{path}: {where + ': ' if where else ''}{msg}"
+
+
+def load_batch(path: str | Path) -> BatchSpec:
+    """Read and validate a batch file; a one-line ConfigError naming the file and key otherwise."""
+    path = Path(path)
+    data = read_yaml_mapping(path)
+    try:
+        return BatchSpec.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(_pydantic_message(exc, path, BatchSpec)) from None
+
+
+# --- planning: drives, configs, keys (in the client; nothing runs yet) --------------------------------------
+
+@dataclass(frozen=True)
+class DriveTask:
+    """Everything a worker needs to run one drive (picklable; every path absolute).
+
+    Attributes:
+        name: the drive's run folder name.
+        spec: its source (simulated drives carry their ``sim_root`` in ``spec.options``).
+        config: the resolved configuration (JSON form of a FeatmapConfig).
+        methods: fusion methods.
+        out: the run folder.
+        cache_dir: the segment cache.
+        world: the world file of a simulated drive (its simulation task's key), else None.
+        topic: Dask event topic for progress (None: no events).
+        scan_tasks: extract the scans as tasks of their own (through the worker's client).
+    """
+
+    name: str
+    spec: SourceSpec
+    config: dict
+    methods: tuple[str, ...]
+    out: str
+    cache_dir: str
+    world: Optional[str] = None
+    topic: Optional[str] = None
+    scan_tasks: bool = False
+
+
+@dataclass(frozen=True)
+class BatchPlan:
+    """A validated batch: its drives (in the order of the file), where it writes, what it merges."""
+
+    path: Path
+    out: Path
+    drives: list[DriveTask]
+    methods: tuple[str, ...]
+    merge_config: dict
+    merge: bool
+    scheduler: Optional[str]
+    workers: Optional[int]
+
+
+def _strip_name(name: str) -> str:
+    for suffix in (".gz", ".bz2", ".log", ".clf", ".yaml", ".yml", ".geojson", ".json"):
+        name = name.removesuffix(suffix)
+    return name.removesuffix("_sync")
+
+
+def _expand(pattern: str, what: str, path: Path, index: int, dirs_only: bool = False) -> list[str]:
+    """Absolute paths a glob matches (sorted); the path itself when it has no glob characters."""
+    if not GLOB_CHARS & set(pattern):
+        return [str(Path(pattern).expanduser().absolute())]
+    matches = sorted(p for p in glob.glob(str(Path(pattern).expanduser())) if not dirs_only or Path(p).is_dir())
+    if not matches:
+        raise ConfigError(f"{path}: drives[{index}]: {what} {pattern!r} matches nothing")
+    return [str(Path(m).absolute()) for m in matches]
+
+
+def _sources(entry: DriveEntry, index: int, path: Path, sim_root: Path) -> list[tuple[str, SourceSpec, Optional[str]]]:
+    """(default name, source spec, world file) of every drive an entry names."""
+    from featmap.datasets import DATASETS
+    from featmap.datasets.kitti_raw import parse_drive
+    from featmap.simulation.worlds import load_world, resolve_world_path
+
+    where = f"{path}: drives[{index}]"
+    if entry.world is not None:
+        try:
+            world_path = str(resolve_world_path(entry.world).absolute())
+            load_world(world_path)                          # a bad world file fails now, before any work
+        except FeatmapError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+        location = entry.world if Path(world_path).parent == _builtin_dir() else world_path
+        spec = SourceSpec("simulated", location, entry.frames, entry.skip_bad_scans, (("sim_root", str(sim_root)),))
+        return [(Path(entry.world).stem, spec, world_path)]
+    if entry.kitti is not None:
+        data_dir = Path(entry.data_dir or "data/kitti")
+        out = []
+        if GLOB_CHARS & set(entry.kitti):
+            folders = _expand(str(data_dir / "*" / f"{entry.kitti}_sync"), "kitti", path, index, dirs_only=True)
+        else:
+            try:
+                date, _ = parse_drive(entry.kitti)
+            except FeatmapError as exc:
+                raise ConfigError(f"{where}: {exc}") from None
+            folders = [str((data_dir / date / f"{entry.kitti}_sync").absolute())]
+        for folder in folders:
+            out.append((_strip_name(Path(folder).name),
+                        SourceSpec("kitti_raw", folder, entry.frames, entry.skip_bad_scans), None))
+        return out
+    if entry.dataset not in DATASETS:
+        raise ConfigError(f"{where}: unknown dataset {entry.dataset!r}; allowed: {', '.join(DATASETS)}")
+    if entry.dataset == "simulated":
+        raise ConfigError(f"{where}: give a simulated drive as 'world: NAME_OR_FILE'")
+    return [(_strip_name(Path(loc).name), SourceSpec(entry.dataset, loc, entry.frames, entry.skip_bad_scans), None)
+            for loc in _expand(entry.location, "location", path, index)]
+
+
+def _builtin_dir() -> Path:
+    from featmap.simulation.worlds import WORLDS_DIR
+
+    return WORLDS_DIR
+
+
+def plan_batch(path: str | Path, out: str | Path | None = None, config: str | Path | None = None,
+               overrides: list[str] = (), scheduler: str | None = None) -> BatchPlan:
+    """Validate a batch file and resolve every drive (globs, names, configs, absolute paths).
+
+    Args:
+        out: the batch's output folder (default: the file's ``out``, else ``runs/batch/<file stem>``).
+        config: replaces the file's ``config`` (the command's ``--config``).
+        overrides: ``--set`` overrides for every drive (after the file's ``set``).
+        scheduler: replaces the file's ``scheduler``.
+    Raises:
+        ConfigError: a bad key, value, glob, world, config or duplicate drive name (nothing has run).
+    """
+    from featmap.datasets import DATASETS
+    from featmap.fusion import resolve_methods
+
+    path = Path(path)
+    spec = load_batch(path)
+    try:
+        methods = tuple(resolve_methods(spec.methods))
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: methods: {exc}") from None
+    out = Path(out or spec.out or Path("runs") / "batch" / path.stem).absolute()
+    cache_dir = str(Path(spec.cache_dir).expanduser().absolute())
+    sim_root = Path(spec.sim_root).expanduser().absolute()
+    base = config if config is not None else spec.config
+    common = list(spec.set) + list(overrides)
+    drives: list[DriveTask] = []
+    seen: dict[str, int] = {}
+    for index, entry in enumerate(spec.drives):
+        sources = _sources(entry, index, path, sim_root)
+        if entry.name is not None and len(sources) != 1:
+            raise ConfigError(f"{path}: drives[{index}]: 'name' names one drive, but the entry matches {len(sources)}")
+        for default_name, source, world in sources:
+            name = entry.name or default_name
+            if not name or "/" in name or name.startswith(".") or name == MERGED:
+                raise ConfigError(f"{path}: drives[{index}]: {name!r} cannot be a run folder name; give another 'name'")
+            if name in seen:
+                raise ConfigError(f"{path}: drives[{index}]: a second drive named {name!r} (drives[{seen[name]}]); "
+                                  "give each a different 'name'")
+            seen[name] = index
+            preset = DATASETS[source.kind].preset
+            drive_base = entry.config or base or preset
+            try:
+                cfg = load_config(drive_base, common + list(entry.set))
+            except ConfigError as exc:
+                raise ConfigError(f"{path}: drives[{index}] ({name}): {exc}") from None
+            drives.append(DriveTask(name, source, cfg.model_dump(mode="json"), methods, str(out / name), cache_dir,
+                                    world))
+    presets = {DATASETS[d.spec.kind].preset for d in drives}
+    try:   # the merged map: the batch-level config (or the drives' common preset)
+        merge_config = load_config(base or (presets.pop() if len(presets) == 1 else None), common)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    if spec.scan_tasks:
+        drives = [replace(d, scan_tasks=True) for d in drives]
+    return BatchPlan(path.absolute(), out, drives, methods, merge_config.model_dump(mode="json"), spec.merge,
+                     scheduler or spec.scheduler, spec.workers)
+
+
+# --- the tasks (they run on the workers) --------------------------------------------------------------------
+
+class EventReporter(RecordingReporter):
+    """A worker-side reporter: records everything, and sends progress and warnings to the client as Dask
+    events on ``topic`` (``{"drive", "kind": "advance"|"warning"|"info", ...}``)."""
+
+    def __init__(self, topic: str | None, drive: str):
+        super().__init__()
+        self.topic, self.drive = topic, drive
+
+    def _send(self, **message) -> None:
+        if self.topic is None:
+            return
+        try:
+            from distributed import get_worker
+
+            get_worker().log_event(self.topic, {"drive": self.drive, **message})
+        except (ImportError, ValueError):        # not on a Dask worker (e.g. a task run in-process)
+            pass
+
+    def progress(self, description: str, total: int | None):
+        import contextlib
+
+        counted = description.startswith("extracting")
+
+        @contextlib.contextmanager
+        def context():
+            yield (lambda n=1: self._send(kind="advance", n=int(n))) if counted else (lambda n=1: None)
+
+        return context()
+
+    def info(self, text: str) -> None:
+        super().info(text)
+        if text.startswith("first run: simulating"):
+            self._send(kind="info", text=text)
+
+    def warning(self, text: str) -> None:
+        super().warning(text)
+        self._send(kind="warning", text=text)
+
+
+@dataclass(frozen=True)
+class SimOutcome:
+    world: str
+    seconds: float
+    error: Optional[str] = None
+
+
+def simulate_task(world: str, sim_root: str, topic: str | None = None) -> SimOutcome:
+    """Dask task: simulate a world's drive into ``sim_root`` unless it is there (one task per world, so two
+    drives of one world never simulate it at once)."""
+    from featmap.datasets.simulated import ensure_simulated_drive
+
+    start = time.perf_counter()
+    try:
+        ensure_simulated_drive(world, sim_root, EventReporter(topic, Path(world).stem))
+    except Exception as exc:            # reported in the summary of every drive that needs this world
+        return SimOutcome(world, time.perf_counter() - start, _one_line(exc))
+    return SimOutcome(world, time.perf_counter() - start)
+
+
+@dataclass(frozen=True)
+class DriveOutcome:
+    """What a drive task reports back (its record for the summary, and what its reporter collected)."""
+
+    record: DriveRecord
+    warnings: list[str] = field(default_factory=list)
+    detail: Optional[str] = None
+
+
+def _one_line(exc: BaseException) -> str:
+    if isinstance(exc, FeatmapError):
+        return str(exc)
+    if isinstance(exc, OSError):
+        return f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror or exc}"
+    return f"{type(exc).__name__}: {exc}"
+
+
+def fingerprint(location: str | Path) -> dict:
+    """A cheap fingerprint of a source's data: number, total size and a hash of the names, sizes and
+    modification times of its files (a re-simulated, re-downloaded or edited drive gets a new one)."""
+    location = Path(location)
+    entries = []
+    if location.is_dir():
+        for root, dirs, files in os.walk(location):
+            dirs.sort()
+            for name in sorted(files):
+                p = Path(root) / name
+                st = p.stat()
+                entries.append((str(p.relative_to(location)), st.st_size, st.st_mtime_ns))
+    elif location.exists():
+        st = location.stat()
+        entries.append((location.name, st.st_size, st.st_mtime_ns))
+    h = hashlib.blake2b(json.dumps(entries).encode(), digest_size=16).hexdigest()
+    return {"files": len(entries), "bytes": int(sum(e[1] for e in entries)), "hash": h}
+
+
+def drive_key(task: DriveTask, location: str) -> DriveKey:
+    """The content key of a drive's run: source identity (+ data fingerprint), resolved config, methods, version."""
+    source = {"kind": task.spec.kind, "location": str(location), "frames": task.spec.frames,
+              "skip_bad_scans": task.spec.skip_bad_scans, "data": fingerprint(location)}
+    text = json.dumps({"source": source, "config": task.config, "methods": list(task.methods),
+                       "featmap": __version__}, sort_keys=True)
+    return DriveKey(key=hashlib.blake2b(text.encode(), digest_size=20).hexdigest(), featmap_version=__version__,
+                    source=source, methods=list(task.methods))
+
+
+def _is_up_to_date(out: Path, key: DriveKey) -> bool:
+    if not (out / KEY_FILE).is_file() or not (out / "metrics.json").is_file():
+        return False
+    try:
+        return read_drive_key(out / KEY_FILE).key == key.key
+    except FeatmapError:
+        return False
+
+
+def _record_from_run(task: DriveTask, status: str, location: str, seconds: float, worker: str | None,
+                     cpu_seconds: float = 0.0) -> DriveRecord:
+    from featmap.io.run_metrics import read_run_metrics
+
+    m = read_run_metrics(Path(task.out) / "metrics.json")
+    return DriveRecord(name=task.name, status=status, run_dir=task.out, kind=task.spec.kind, location=location,
+                       scans=m.scans.processed, segments=m.segments,
+                       counts={k: r.count for k, r in m.methods.items()},
+                       scores={k: {s: v for s, v in m.primary_scores(k).items() if not isinstance(v, dict)}
+                               for k in m.methods},
+                       primary=m.primary, seconds=round(seconds, 3), cpu_seconds=round(cpu_seconds, 3), worker=worker)
+
+
+def run_drive_task(task: DriveTask, sim: SimOutcome | None = None) -> DriveOutcome:
+    """Dask task: run one drive exactly as ``featmap run`` would, unless its run folder is up to date.
+
+    Never raises for a failing drive: the outcome says ``failed`` with a one-line error (and the traceback
+    of an unexpected exception in ``detail``).
+    """
+    from featmap.datasets import open_source
+    from featmap.pipeline import MappingPipeline, SegmentStore
+    from featmap.pipeline.config import config_from_dict
+    from featmap.pipeline.executor import DaskExecutor, SerialExecutor
+
+    start, cpu_start = time.perf_counter(), time.process_time()
+    reporter = EventReporter(task.topic, task.name)
+    worker = _worker_address()
+    location = task.spec.location
+
+    def failed(message: str, detail: str | None = None) -> DriveOutcome:
+        return DriveOutcome(DriveRecord(name=task.name, status="failed", run_dir=task.out, kind=task.spec.kind,
+                                        location=str(location), error=message,
+                                        seconds=round(time.perf_counter() - start, 3), worker=worker),
+                            reporter.warnings, detail)
+
+    if sim is not None and sim.error is not None:
+        return failed(f"simulating {sim.world}: {sim.error}")
+    try:
+        config = config_from_dict(task.config, f"{task.name} config")
+        source = open_source(task.spec, reporter)
+        location = str(source.location)
+        key = drive_key(task, location)
+        out = Path(task.out)
+        if _is_up_to_date(out, key):
+            record = _record_from_run(task, "skipped", location, 0.0, worker)
+            reporter._send(kind="advance", n=record.scans)
+            return DriveOutcome(record, reporter.warnings)
+        pipeline_args = (config, list(task.methods), SegmentStore(task.cache_dir))
+        if task.scan_tasks:
+            from distributed import worker_client
+
+            with worker_client() as client:
+                MappingPipeline(*pipeline_args, DaskExecutor(client), reporter, task.spec.skip_bad_scans).run(source, out)
+        else:
+            MappingPipeline(*pipeline_args, SerialExecutor(), reporter, task.spec.skip_bad_scans).run(source, out)
+        write_drive_key(out / KEY_FILE, key)
+        record = _record_from_run(task, "done", location, time.perf_counter() - start, worker,
+                                  time.process_time() - cpu_start)
+        return DriveOutcome(record, reporter.warnings)
+    except Exception as exc:
+        detail = None if isinstance(exc, (FeatmapError, OSError)) else traceback.format_exc()
+        return failed(_one_line(exc), detail)
+
+
+def _worker_address() -> str | None:
+    try:
+        from distributed import get_worker
+
+        return get_worker().address
+    except (ImportError, ValueError):
+        return None
+
+
+# --- the merged map --------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class MergedInputs:
+    """Every drive's segments in one local frame.
+
+    Attributes:
+        table: segments (N, 4) in the merged frame, scan ids made unique (drive offset + frame), column
+            ``drive`` (index into ``drives``).
+        drives: the drives in it, with their scan offsets, frames and truth.
+        names: drive names, in order.
+        frame: the merged frame's geo origin (the first drive's), or None (drives of one indoor log).
+        left_out: drive -> why it is not in the merged map.
+        trajectories: drive -> (F, 2) sensor positions in the merged frame.
+    """
+
+    table: Any
+    drives: list[MergedDrive]
+    names: list[str]
+    frame: Any
+    left_out: dict[str, str]
+    trajectories: dict[str, np.ndarray]
+
+
+def merged_inputs(run_dirs: list[tuple[str, str | Path]]) -> MergedInputs:
+    """Read the drives' run folders and put their segments into the first drive's local frame.
+
+    Drives with a geo origin are moved through WGS84 into the first one's frame. Drives without one
+    (indoor logs) can only be merged with drives of the same source location (one log, several frame
+    ranges): they share its frame. Others are left out (listed in ``left_out``).
+    """
+    from featmap.geo import reproject, reproject_segments
+    from featmap.io.run_metrics import GeoRecord, read_run_metrics
+    from featmap.io.segments_csv import SegmentTable, read_segments_csv
+
+    runs = []
+    for name, run_dir in run_dirs:
+        run_dir = Path(run_dir)
+        metrics = read_run_metrics(run_dir / "metrics.json")
+        runs.append((name, run_dir, metrics))
+    left_out: dict[str, str] = {}
+    with_geo = [r for r in runs if r[2].geo_frame is not None]
+    if with_geo:
+        frame = with_geo[0][2].geo_frame.frame()
+        for name, _, m in runs:
+            if m.geo_frame is None:
+                left_out[name] = "no geo origin (an indoor log) to place it among drives that have one"
+        runs = with_geo
+    else:
+        frame = None
+        first_location = runs[0][2].source.location if runs else None
+        for name, _, m in runs:
+            if m.source.location != first_location:
+                left_out[name] = (f"no geo origin, and another source than {runs[0][0]}: the two local frames "
+                                  "cannot be related")
+        runs = [r for r in runs if r[0] not in left_out]
+    segs, scans, drive_col, drives, trajectories = [], [], [], [], {}
+    offset = 0
+    for index, (name, run_dir, m) in enumerate(runs):
+        table = read_segments_csv(run_dir / "segments.csv")
+        src = m.geo_frame.frame() if m.geo_frame is not None else None
+        moved = reproject_segments(table.segments, src, frame) if frame is not None else table.segments
+        segs.append(moved)
+        scans.append(table.scan + offset)
+        drive_col.append(np.full(len(table), index, np.int64))
+        truth = m.reference_path("truth", run_dir)
+        drives.append(MergedDrive(name=name, run_dir=str(run_dir), scan_offset=offset, segments=len(table),
+                                  geo_frame=GeoRecord(**src.to_dict()) if src is not None else None,
+                                  truth=str(truth) if truth is not None and truth.exists() else None,
+                                  frames_processed=m.source.frames_processed))
+        traj_path = run_dir / "trajectory.csv"
+        if traj_path.exists():
+            xy = np.loadtxt(traj_path, delimiter=",", skiprows=1, ndmin=2)[:, 1:3]
+            trajectories[name] = reproject(xy, src, frame) if frame is not None else xy
+        top = max([int(table.scan.max()) if len(table) else -1, *m.source.frames_processed, -1])
+        offset += top + 1
+    if segs:
+        table = SegmentTable(scan=np.concatenate(scans).astype(np.int64), segments=np.concatenate(segs).reshape(-1, 4),
+                             extra={"drive": np.concatenate(drive_col).astype(float)})
+    else:
+        table = SegmentTable(scan=np.zeros(0, np.int64), segments=np.zeros((0, 4)), extra={"drive": np.zeros(0)})
+    return MergedInputs(table, drives, [d.name for d in drives], frame, left_out, trajectories)
+
+
+def merged_reference(inputs: MergedInputs):
+    """(evaluator, Reference) of the drives' simulator truths united in the merged frame, or None when some
+    drive has none (then the merged map is not scored)."""
+    from featmap.evaluation import Reference
+    from featmap.evaluation.plugins import SimulatorTruth
+    from featmap.evaluation.references import load_simulator_truth, merge_truths
+
+    if not inputs.drives or any(d.truth is None for d in inputs.drives):
+        return None
+    truths = [load_simulator_truth(d.truth, inputs.frame, d.frames_processed) for d in inputs.drives]
+    return SimulatorTruth(), Reference(merge_truths(truths), ";".join(d.truth for d in inputs.drives))
+
+
+def drive_provenance(labels: np.ndarray, drive: np.ndarray, n_features: int) -> list[list[int]]:
+    """For each fused feature, the sorted drive indices among its member segments (labels (N,), drive (N,))."""
+    keep = labels >= 0
+    pairs = np.unique(np.stack([labels[keep], drive[keep]]), axis=1) if keep.any() else np.zeros((2, 0), np.int64)
+    out: list[list[int]] = [[] for _ in range(n_features)]
+    for feature, d in pairs.T:
+        out[int(feature)].append(int(d))
+    return out
+
+
+def merge_task(run_dirs: list[tuple[str, str]], out: str, methods: tuple[str, ...], config: dict) -> MergedRecord:
+    """Dask task (or a plain call): fuse the drives' segments together into ``out`` (a run folder).
+
+    Writes ``segments.csv`` (merged frame, unique scan ids, ``drive`` column), ``fused_<method>.csv``
+    (with ``n_drives`` and ``drives``: who saw each feature), ``fused_<method>.geojson`` (the same as
+    properties), ``map.kml`` and ``map.html`` (a layer per method and per drive's trajectory),
+    ``config.yaml`` and ``merged.json`` (frame, drives, counts, scores against the drives' united truth).
+    """
+    from featmap.geo import reproject_segments
+    from featmap.io.atomic import atomic_write_text
+    from featmap.io.run_metrics import GeoRecord
+    from featmap.io.segments_csv import read_fused_csv, write_fused_csv, write_segments_csv
+    from featmap.pipeline.config import config_from_dict
+    from featmap.pipeline.fuse import fuse_methods
+    from featmap.pipeline.run_folder import RunFolder
+
+    start = time.perf_counter()
+    cfg = config_from_dict(config, "batch config")
+    inputs = merged_inputs(run_dirs)
+    table = inputs.table
+    runs = fuse_methods(table, list(methods), cfg.fusion)
+    reference = merged_reference(inputs)
+    drive_index = table.extra["drive"].astype(np.int64)
+    scores, drive_scores, counts, multi = {}, {}, {}, {}
+    provenance = {}
+    for run in runs:
+        r = run.result
+        provenance[run.name] = drive_provenance(r.labels, drive_index, len(r))
+        counts[run.name] = len(r)
+        multi[run.name] = sum(len(p) > 1 for p in provenance[run.name])
+        if reference is not None:
+            evaluator, ref = reference
+            scores[run.name] = evaluator.score(ref, r.segments)
+            drive_scores[run.name] = {}
+            for d in inputs.drives:
+                alone, _ = read_fused_csv(Path(d.run_dir) / f"fused_{run.name}.csv")
+                if d.geo_frame is not None and inputs.frame is not None:
+                    alone = reproject_segments(alone, d.geo_frame.frame(), inputs.frame)
+                drive_scores[run.name][d.name] = evaluator.score(ref, alone)
+    with RunFolder(out) as folder:
+        write_segments_csv(folder.tmp / "segments.csv", table)
+        for run in runs:
+            names = [";".join(inputs.names[i] for i in p) for p in provenance[run.name]]
+            write_fused_csv(folder.tmp / f"fused_{run.name}.csv", run.result.segments, run.result.support,
+                            {"n_drives": [len(p) for p in provenance[run.name]], "drives": names})
+        if inputs.frame is not None:
+            _write_merged_maps(folder.tmp, inputs, runs, provenance, cfg)
+        atomic_write_text(folder.tmp / "config.yaml", cfg.to_yaml())
+        record = MergedRecord(featmap_version=__version__,
+                              geo_frame=GeoRecord(**inputs.frame.to_dict()) if inputs.frame is not None else None,
+                              drives=inputs.drives, left_out=inputs.left_out, segments=len(table), counts=counts,
+                              multi_drive=multi, reference=reference[1].path if reference is not None else None,
+                              scores=_plain(scores), drive_scores=_plain(drive_scores),
+                              seconds=round(time.perf_counter() - start, 3))
+        write_merged_record(folder.tmp / "merged.json", record)
+        folder.commit()
+    return record
+
+
+def _plain(scores: dict) -> dict:
+    """Nested score dicts with only numbers (or None) at the leaves (as metrics.json keeps them)."""
+    return {k: _plain(v) if isinstance(v, dict) else v for k, v in scores.items()
+            if isinstance(v, (dict, int, float)) or v is None}
+
+
+def _write_merged_maps(folder: Path, inputs: MergedInputs, runs, provenance: dict, cfg) -> None:
+    from featmap.io.geojson import write_segments_geojson
+    from featmap.io.html_map import write_html_map
+    from featmap.io.kml import write_kml
+    from featmap.io.layers import MapLayer
+    from featmap.plotting.style import SEGMENT_COLOR, method_color
+
+    palette = ["#1f77b4", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"]
+    for run in runs:
+        r = run.result
+        props = [{"support": int(s), "n_drives": len(p), "drives": [inputs.names[i] for i in p]}
+                 for s, p in zip(r.support, provenance[run.name])]
+        write_segments_geojson(folder / f"fused_{run.name}.geojson", r.segments, inputs.frame, props,
+                               {"method": run.name})
+    layers = [MapLayer(run.name, run.result.segments, run.result.support, method_color(run.name), width=3)
+              for run in runs]
+    for run in runs:
+        several = np.array([len(p) > 1 for p in provenance[run.name]], bool)
+        layers.append(MapLayer(f"{run.name}: seen by several drives", run.result.segments[several],
+                               run.result.support[several], method_color(run.name), width=5, show=False))
+    for k, (name, xy) in enumerate(inputs.trajectories.items()):
+        if len(xy) > 1:
+            layers.append(MapLayer(f"trajectory {name}", np.column_stack([xy[:-1], xy[1:]]), None,
+                                   palette[k % len(palette)], width=2))
+    if cfg.output.kml:
+        write_kml(folder / "map.kml", layers, inputs.frame)
+    if cfg.output.html:
+        segments = MapLayer("segments", inputs.table.segments, None, SEGMENT_COLOR, show=False)
+        write_html_map(folder / "map.html", [segments, *layers], inputs.frame)
+
+
+# --- running a batch on a Dask client ------------------------------------------------------------------------
+
+@dataclass
+class BatchResult:
+    summary: BatchSummary
+    outcomes: list[DriveOutcome]
+    merged: Optional[MergedRecord]
+
+    @property
+    def failed(self) -> list[DriveRecord]:
+        return [d for d in self.summary.drives if d.status == "failed"]
+
+
+def local_cluster(workers: int | None = None):
+    """A LocalCluster on 127.0.0.1 (no dashboard): ``workers`` processes of one thread (default: the cores).
+
+    Scripts that call this need the ``if __name__ == "__main__":`` guard (the workers are spawned).
+    """
+    from distributed import LocalCluster
+
+    n = workers or os.cpu_count() or 1
+    return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                        dashboard_address=None, silence_logs=40)
+
+
+def run_batch(plan: BatchPlan, client, reporter: Reporter = NullReporter()) -> BatchResult:
+    """Run every drive of ``plan`` as a task on ``client``, then the merge; write ``OUT/summary.json``.
+
+    Progress: one bar of scans extracted (or found up to date) across drives; a line per finished drive;
+    workers' warnings prefixed with their drive.
+    """
+    from distributed import as_completed
+
+    from featmap.io.atomic import atomic_write_text
+
+    start = time.perf_counter()
+    topic = f"featmap-batch-{uuid.uuid4().hex[:12]}"
+    plan.out.mkdir(parents=True, exist_ok=True)
+    tasks = [replace(d, topic=topic) for d in plan.drives]
+    outcomes: dict[str, DriveOutcome] = {}
+    sim_seconds: dict[str, float] = {}
+    with reporter.progress(f"batch of {len(tasks)} drives: scans", None) as advance:
+        def on_event(event) -> None:
+            message = event[1] if isinstance(event, tuple) else event
+            kind = message.get("kind")
+            if kind == "advance":
+                advance(message.get("n", 1))
+            elif kind == "warning":
+                reporter.warning(f"{message.get('drive')}: {message.get('text')}")
+            elif kind == "info":
+                reporter.info(f"{message.get('drive')}: {message.get('text')}")
+
+        client.subscribe_topic(topic, on_event)
+        try:
+            sims = {}
+            for task in tasks:
+                if task.world is not None and task.world not in sims:
+                    sim_root = dict(task.spec.options)["sim_root"]
+                    sims[task.world] = client.submit(simulate_task, task.world, sim_root, topic, pure=False,
+                                                     key=f"simulate-{Path(task.world).stem}-{uuid.uuid4().hex[:6]}")
+            futures = {client.submit(run_drive_task, task, sims.get(task.world), pure=False,
+                                     key=f"drive-{task.name}-{uuid.uuid4().hex[:6]}"): task for task in tasks}
+            for future in as_completed(futures):
+                task = futures[future]
+                try:
+                    outcome = future.result()
+                except Exception as exc:            # the worker died (KilledWorker), or the task could not run
+                    outcome = DriveOutcome(DriveRecord(name=task.name, status="failed", run_dir=task.out,
+                                                       kind=task.spec.kind, location=task.spec.location,
+                                                       error=_one_line(exc)))
+                outcomes[task.name] = outcome
+                _report_drive(outcome.record, reporter)
+            for world, future in sims.items():
+                try:
+                    sim_seconds[world] = future.result().seconds
+                except Exception:
+                    sim_seconds[world] = 0.0
+        finally:
+            client.unsubscribe_topic(topic)
+    ordered = []
+    for task in tasks:
+        outcome = outcomes[task.name]
+        record = outcome.record.model_copy(update={"simulation_seconds": round(sim_seconds.get(task.world, 0.0), 3)
+                                                   if task.world else 0.0})
+        ordered.append(DriveOutcome(record, outcome.warnings, outcome.detail))
+    merged = None
+    merge_seconds = None
+    usable = [(o.record.name, o.record.run_dir) for o in ordered if o.record.status != "failed"]
+    if plan.merge and usable:
+        merge_future = client.submit(merge_task, usable, str(plan.out / MERGED), plan.methods, plan.merge_config,
+                                     pure=False, key=f"merge-{uuid.uuid4().hex[:6]}")
+        try:
+            merged = merge_future.result()
+            merge_seconds = merged.seconds
+        except Exception as exc:
+            reporter.warning(f"merged map: {_one_line(exc)}")
+    elif plan.merge:
+        reporter.warning("merged map: no drive finished, nothing to merge")
+    records = [o.record for o in ordered]
+    chains = [r.simulation_seconds + r.seconds for r in records] or [0.0]
+    summary = BatchSummary(
+        featmap_version=__version__, batch_file=str(plan.path), scheduler=str(client.scheduler.address),
+        workers=int(sum(client.nthreads().values())), drives=records,
+        wall_seconds=round(time.perf_counter() - start, 3),
+        work_seconds=round(sum(r.seconds for r in records) + sum(sim_seconds.values()) + (merge_seconds or 0.0), 3),
+        work_cpu_seconds=round(sum(r.cpu_seconds for r in records), 3),
+        critical_path_seconds=round(max(chains) + (merge_seconds or 0.0), 3), merge_seconds=merge_seconds,
+        merged=str(plan.out / MERGED) if merged is not None else None)
+    write_batch_summary(plan.out / "summary.json", summary)
+    details = {o.record.name: o.detail for o in ordered if o.detail}
+    if details:
+        atomic_write_text(plan.out / "errors.txt", "".join(f"== {k}\n{v}\n" for k, v in details.items()))
+    result = BatchResult(summary, ordered, merged)
+    report_batch(result, reporter)
+    return result
+
+
+def _report_drive(record: DriveRecord, reporter: Reporter) -> None:
+    if record.status == "failed":
+        reporter.warning(f"{record.name}: failed: {record.error}")
+    elif record.status == "skipped":
+        reporter.info(f"{record.name}: up to date ({record.run_dir}), skipped")
+    else:
+        counts = ", ".join(f"{k} {v}" for k, v in record.counts.items())
+        reporter.info(f"{record.name}: {record.scans} scans, {record.segments} segments -> {counts} "
+                      f"in {record.seconds:.1f} s")
+
+
+def _fmt(value, nd) -> str:
+    return "-" if value is None or isinstance(value, dict) else f"{value:.{nd}f}"
+
+
+def report_batch(result: BatchResult, reporter: Reporter) -> None:
+    """The summary table (a row per drive, a total row) and the merged map's table."""
+    s = result.summary
+    method = next((m for r in s.drives for m in r.counts), None)
+    columns = ["drive", "status", "scans", "segments", f"{method or 'features'}", "precision", "recall", "seconds",
+               "note"]
+    rows = []
+    for r in s.drives:
+        sc = r.scores.get(method, {}) if method else {}
+        note = r.error if r.status == "failed" else ("up to date" if r.status == "skipped" else (r.worker or ""))
+        rows.append([r.name, r.status, str(r.scans), str(r.segments), str(r.counts.get(method, "-")),
+                     _fmt(sc.get("precision"), 3), _fmt(sc.get("recall"), 3), f"{r.seconds:.1f}", note or ""])
+    n = {k: sum(r.status == k for r in s.drives) for k in ("done", "skipped", "failed")}
+    rows.append(["total", f"{n['done']} done, {n['skipped']} skipped, {n['failed']} failed",
+                 str(sum(r.scans for r in s.drives)), str(sum(r.segments for r in s.drives)),
+                 str(sum(r.counts.get(method, 0) for r in s.drives)) if method else "-", "", "",
+                 f"{s.wall_seconds:.1f}", f"work {s.work_seconds:.1f} s, critical path {s.critical_path_seconds:.1f} s, "
+                 f"{s.workers} worker threads"])
+    reporter.table(f"featmap batch: {len(s.drives)} drives on {s.scheduler}", columns, rows)
+    m = result.merged
+    if m is not None:
+        mcols = ["method", "features", "seen by 2+ drives"]
+        keys = [("count_ratio", 2), ("precision", 3), ("recall", 3), ("redundancy", 2)]
+        if m.scores:
+            mcols += [k for k, _ in keys] + ["best single drive recall"]
+        mrows = []
+        for name, count in m.counts.items():
+            row = [name, str(count), str(m.multi_drive.get(name, 0))]
+            if m.scores:
+                sc = m.scores.get(name, {})
+                best = max((d.get("recall") or 0.0 for d in m.drive_scores.get(name, {}).values()), default=None)
+                row += [_fmt(sc.get(k), nd) for k, nd in keys] + [_fmt(best, 3)]
+            mrows.append(row)
+        against = " (scored against the drives' truths, united)" if m.scores else ""
+        reporter.table(f"merged map: {len(m.drives)} drives, {m.segments} segments{against}", mcols, mrows)
+        for name, why in m.left_out.items():
+            reporter.warning(f"merged map: left out {name}: {why}")
+    reporter.info(f"wrote {len(s.drives)} run folders, summary.json" + (", merged/" if m is not None else "")
+                  + f" to {Path(s.drives[0].run_dir).parent if s.drives else ''}")
+
+
+def connect(scheduler: str | None, workers: int | None = None, timeout_s: float = 20.0):
+    """(client, cluster): a client of the scheduler at ``scheduler`` (cluster None), or of a new LocalCluster."""
+    from distributed import Client
+
+    if scheduler:
+        try:
+            return Client(scheduler, timeout=f"{timeout_s}s"), None
+        except (OSError, TimeoutError) as exc:
+            raise ConfigError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+    cluster = local_cluster(workers)
+    return Client(cluster), cluster

@@ -1,0 +1,330 @@
+"""featmap batch: drives as Dask tasks, identical to featmap run, resumable, failures contained, one merged map."""
+
+import csv
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from featmap.cli import app
+from featmap.io.batch_records import read_batch_summary, read_drive_key, read_merged_record
+from featmap.io.segments_csv import read_fused_csv
+
+pytest.importorskip("distributed")
+
+from featmap.batch import drive_provenance, plan_batch, run_batch  # noqa: E402
+from featmap.reporting import RecordingReporter  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+runner = CliRunner()
+QUIET = ["output.plots=false"]          # no basemap tiles (no network in tests)
+METHODS = ["proposed", "density"]
+
+
+def write_batch(path: Path, worlds: Path, sim_root: Path, cache: Path, drives: str | None = None, extra: str = "") -> Path:
+    drives = drives or (f"  - world: {worlds / 'tiny.yaml'}\n  - world: {worlds / 'tiny_b.yaml'}\n"
+                        f"  - world: {worlds / 'tiny_c.yaml'}\n    set: [fusion.proposed.eta_m=0.4]\n")
+    path.write_text(f"set: {json.dumps(QUIET)}\nmethods: {json.dumps(METHODS)}\nsim_root: {sim_root}\n"
+                    f"cache_dir: {cache}\n{extra}drives:\n{drives}")
+    return path
+
+
+def same_run(a: Path, b: Path) -> None:
+    """Two run folders hold the same files with the same contents, timings (and the HTML map's random ids) aside."""
+    skip = {"batch.json", "metrics.json", "comparison.csv", "comparison.md", "map.html"}
+    names_a = {p.name for p in a.iterdir()} - {"batch.json"}
+    assert names_a == {p.name for p in b.iterdir()} - {"batch.json"}
+    for name in sorted(names_a - skip):
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
+
+    def untimed(folder):
+        m = json.loads((folder / "metrics.json").read_text())
+        m.pop("timings_s")
+        m["scans"].pop("extracted_now")
+        m["scans"].pop("from_cache")
+        for record in m["methods"].values():
+            record.pop("seconds")
+        return m
+
+    assert untimed(a) == untimed(b)
+
+
+@pytest.fixture(scope="module")
+def first_batch(tiny_worlds, dask_client, tmp_path_factory):
+    """The three tiny drives as a batch on the 2-worker LocalCluster, simulated on first use into a fresh root."""
+    tmp = tmp_path_factory.mktemp("batch")
+    path = write_batch(tmp / "b.yaml", tiny_worlds, tmp / "data" / "sim", tmp / "cache")
+    plan = plan_batch(path, tmp / "out")
+    reporter = RecordingReporter()
+    result = run_batch(plan, dask_client, reporter)
+    return tmp, plan, result, reporter
+
+
+def test_a_batch_gives_what_featmap_run_gives_for_each_drive(first_batch, tiny_worlds, monkeypatch):
+    tmp, plan, result, reporter = first_batch
+    assert [d.status for d in result.summary.drives] == ["done"] * 3
+    assert any("simulating the tiny_b drive" in line for line in reporter.infos)   # simulated on first use
+    monkeypatch.chdir(tmp)                                                           # featmap run's data/sim
+    for name, extra in (("tiny", []), ("tiny_b", []), ("tiny_c", ["--set", "fusion.proposed.eta_m=0.4"])):
+        res = runner.invoke(app, ["run", "--world", str(tiny_worlds / f"{name}.yaml"), "--method", ",".join(METHODS),
+                                  "--set", QUIET[0], *extra, "--out", str(tmp / "alone" / name),
+                                  "--cache-dir", str(tmp / "cache_alone"), "--workers", "1"])
+        assert res.exit_code == 0, res.output
+        same_run(tmp / "out" / name, tmp / "alone" / name)
+        for method in METHODS:   # the fused CSVs, explicitly
+            a = (tmp / "out" / name / f"fused_{method}.csv").read_bytes()
+            assert a == (tmp / "alone" / name / f"fused_{method}.csv").read_bytes()
+    # the per-drive override reached only its drive
+    assert "eta_m: 0.4" in (tmp / "out" / "tiny_c" / "config.yaml").read_text()
+    assert "eta_m: 0.4" not in (tmp / "out" / "tiny" / "config.yaml").read_text()
+    # both workers ran drives; the summary was written and reported
+    summary = read_batch_summary(tmp / "out" / "summary.json")
+    assert summary.workers == 2 and len({d.worker for d in summary.drives}) == 2
+    assert summary.critical_path_seconds <= summary.work_seconds
+    assert reporter.tables[0][0].startswith("featmap batch: 3 drives")
+    assert reporter.tables[0][2][-1][0] == "total"
+
+
+def test_the_merged_map_fuses_walls_seen_by_several_drives_into_one(first_batch):
+    tmp, plan, result, _ = first_batch
+    merged = read_merged_record(tmp / "out" / "merged" / "merged.json")
+    assert result.merged == merged
+    assert [d.name for d in merged.drives] == ["tiny", "tiny_b", "tiny_c"]
+    # three different local origins (each drive's first pose); the merged frame is the first drive's
+    origins = {(d.geo_frame.lat0_deg, d.geo_frame.lon0_deg) for d in merged.drives}
+    assert len(origins) == 3 and (merged.geo_frame.lat0_deg, merged.geo_frame.lon0_deg) == \
+        (merged.drives[0].geo_frame.lat0_deg, merged.drives[0].geo_frame.lon0_deg)
+    # scan ids stay unique across drives
+    seg = np.loadtxt(tmp / "out" / "merged" / "segments.csv", delimiter=",", skiprows=1)
+    drive_col = list(next(csv.reader(open(tmp / "out" / "merged" / "segments.csv")))).index("drive")
+    for d in range(3):
+        for e in range(d + 1, 3):
+            assert not set(seg[seg[:, drive_col] == d, 0]) & set(seg[seg[:, drive_col] == e, 0])
+    for method in METHODS:
+        scores = merged.scores[method]
+        alone = merged.drive_scores[method]
+        # moved into one frame, the drives' walls coincide: one feature per wall, nothing lost
+        assert scores["precision"] > 0.95
+        assert scores["redundancy"] <= 1.05
+        assert scores["recall"] >= max(s["recall"] for s in alone.values()) - 1e-9
+        assert merged.counts[method] <= max(r.counts[method] for r in result.summary.drives) + 1
+        rows = list(csv.DictReader(open(tmp / "out" / "merged" / f"fused_{method}.csv")))
+        assert len(rows) == merged.counts[method]
+        assert all(r["drives"] and int(r["n_drives"]) == len(r["drives"].split(";")) for r in rows)
+        # every drive saw the south wall of A (y = 6, x -5..15): one feature, three drives
+        south_a = [r for r in rows if abs(float(r["y1"]) - 6) < 0.2 and abs(float(r["y2"]) - 6) < 0.2
+                   and min(float(r["x1"]), float(r["x2"])) < 0]
+        assert len(south_a) == 1 and south_a[0]["drives"] == "tiny;tiny_b;tiny_c"
+        fc = json.loads((tmp / "out" / "merged" / f"fused_{method}.geojson").read_text())
+        assert {tuple(f["properties"]["drives"]) for f in fc["features"]} >= {("tiny", "tiny_b", "tiny_c")}
+        segments, support = read_fused_csv(tmp / "out" / "merged" / f"fused_{method}.csv")   # readable back
+        assert len(segments) == len(rows)
+    assert merged.multi_drive["proposed"] >= 3
+    assert {"map.kml", "map.html", "config.yaml", "segments.csv"} <= {p.name for p in (tmp / "out" / "merged").iterdir()}
+
+
+def test_provenance_lists_the_drives_of_each_feature():
+    labels = np.array([0, 0, 1, -1, 1, 2])
+    drive = np.array([0, 1, 1, 0, 1, 2])
+    assert drive_provenance(labels, drive, 4) == [[0, 1], [1], [2], []]
+
+
+def test_a_rerun_resumes_skipping_finished_drives(first_batch, dask_client, tmp_path):
+    tmp, plan, result, _ = first_batch
+    out = tmp_path / "out"
+    shutil.copytree(tmp / "out", out)                  # a moved batch folder resumes too (keys name no output path)
+    batch_file = tmp_path / "b.yaml"
+    shutil.copy(plan.path, batch_file)
+    stamp = {n: (out / n / "segments.csv").stat().st_mtime_ns for n in ("tiny", "tiny_b", "tiny_c")}
+    again = run_batch(plan_batch(batch_file, out), dask_client, RecordingReporter())
+    assert [d.status for d in again.summary.drives] == ["skipped"] * 3
+    assert {n: (out / n / "segments.csv").stat().st_mtime_ns for n in stamp} == stamp
+    assert [d.counts for d in again.summary.drives] == [d.counts for d in result.summary.drives]
+    # a changed override, a run folder lost and a key never written (killed after the swap): only those re-run
+    batch_file.write_text(batch_file.read_text().replace("eta_m=0.4", "eta_m=0.45"))
+    shutil.rmtree(out / "tiny_b")
+    (out / "tiny" / "batch.json").unlink()
+    third = run_batch(plan_batch(batch_file, out), dask_client, RecordingReporter())
+    assert [d.status for d in third.summary.drives] == ["done", "done", "done"]
+    assert "eta_m: 0.45" in (out / "tiny_c" / "config.yaml").read_text()
+    fourth = run_batch(plan_batch(batch_file, out), dask_client, RecordingReporter())
+    assert [d.status for d in fourth.summary.drives] == ["skipped"] * 3
+    key = read_drive_key(out / "tiny_c" / "batch.json")
+    assert key.source["kind"] == "simulated" and key.source["data"]["files"] > 30
+    # re-simulated (or edited) data of a drive makes a new key: that drive runs again
+    scan = next((tmp / "data" / "sim" / "tiny_b").rglob("0000000003.bin"))
+    os.utime(scan, ns=(time.time_ns(), time.time_ns()))
+    fifth = run_batch(plan_batch(batch_file, out), dask_client, RecordingReporter())
+    assert [d.status for d in fifth.summary.drives] == ["skipped", "done", "skipped"]
+
+
+def test_a_failing_drive_is_reported_and_the_others_finish(first_batch, dask_client, tiny_worlds, tmp_path):
+    tmp = first_batch[0]
+    # a KITTI raw copy of the simulated tiny drive with one scan cut short
+    kitti = tmp_path / "kitti"
+    shutil.copytree(tmp / "data" / "sim" / "tiny", kitti)
+    broken = next(kitti.rglob("0000000005.bin"))
+    broken.write_bytes(broken.read_bytes()[:-6])
+    drives = (f"  - world: {tiny_worlds / 'tiny.yaml'}\n  - kitti: 2000_01_01_drive_0001\n    data_dir: {kitti}\n"
+              f"    name: broken\n")
+    path = write_batch(tmp_path / "b.yaml", tiny_worlds, tmp / "data" / "sim", tmp / "cache", drives)
+    res = runner.invoke(app, ["batch", str(path), "--out", str(tmp_path / "out"), "--scheduler",
+                              dask_client.scheduler.address])
+    assert res.exit_code == 1, res.output
+    assert "1 of 2 drive(s) failed" in res.output
+    summary = read_batch_summary(tmp_path / "out" / "summary.json")
+    tiny, bad = summary.drives
+    assert tiny.status == "done" and bad.status == "failed"
+    assert "0000000005.bin: truncated scan" in bad.error
+    assert not (tmp_path / "out" / "broken").exists()
+    merged = read_merged_record(tmp_path / "out" / "merged" / "merged.json")
+    assert [d.name for d in merged.drives] == ["tiny"]
+    # skipping bad scans (a per-drive option) makes it pass; the good drive is not run again
+    path.write_text(path.read_text().replace("    name: broken\n", "    name: broken\n    skip_bad_scans: true\n"))
+    res = runner.invoke(app, ["batch", str(path), "--out", str(tmp_path / "out"), "--scheduler",
+                              dask_client.scheduler.address])
+    assert res.exit_code == 0, res.output
+    assert [d.status for d in read_batch_summary(tmp_path / "out" / "summary.json").drives] == ["skipped", "done"]
+
+
+def test_scans_as_tasks_of_their_own_give_the_same_run(first_batch, dask_client, tiny_worlds, tmp_path):
+    tmp = first_batch[0]
+    drives = f"  - world: {tiny_worlds / 'tiny_b.yaml'}\n"
+    path = write_batch(tmp_path / "b.yaml", tiny_worlds, tmp / "data" / "sim", tmp_path / "cache", drives,
+                       extra="scan_tasks: true\nmerge: false\n")
+    result = run_batch(plan_batch(path, tmp_path / "out"), dask_client, RecordingReporter())
+    assert result.summary.drives[0].status == "done" and result.merged is None
+    assert not (tmp_path / "out" / "merged").exists()
+    same_run(tmp_path / "out" / "tiny_b", tmp / "out" / "tiny_b")
+
+
+def test_the_example_batch_names_two_builtin_drives_over_shared_streets():
+    from featmap.simulation.worlds import load_world
+
+    plan = plan_batch(ROOT / "configs" / "batch_example.yaml")
+    assert [d.name for d in plan.drives] == ["residential", "residential_cross"] and plan.merge
+    assert plan.out.parts[-3:] == ("runs", "batch", "example")
+    routes = [np.asarray(load_world(d.name).route.waypoints) for d in plan.drives]
+    # two of the cross route's legs run along the default route's streets (x = 170 and y = 110)
+    shared = [leg for leg in zip(routes[1][:-1], routes[1][1:])
+              if any(np.allclose(sorted(map(tuple, leg)), sorted(map(tuple, other)))
+                     for other in zip(routes[0][:-1], routes[0][1:]))]
+    assert len(shared) == 2
+
+
+def test_sweep_over_a_batch_on_the_dask_client_matches_local(first_batch, dask_client, tmp_path):
+    from featmap.pipeline.executor import DaskExecutor, SerialExecutor
+    from featmap.sweep import run_sweep_file
+
+    tmp = first_batch[0]
+    spec = tmp_path / "s.yaml"
+    spec.write_text(f"batch: {tmp / 'out'}\nmethods: [proposed]\n"
+                    "grid:\n  fusion.proposed.eta_m: [0.2, 0.5]\n  fusion.proposed.min_support: [2, 4]\n")
+    rows_dask, best = run_sweep_file(spec, tmp_path / "dask", DaskExecutor(dask_client))
+    rows_local, _ = run_sweep_file(spec, tmp_path / "local", SerialExecutor())
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]  # noqa: E731
+    assert strip(rows_dask) == strip(rows_local) and len(rows_dask) == 4
+    assert all(r["recall"] is not None for r in rows_dask) and best is not None
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def real_cluster(tmp_path):
+    """``dask scheduler`` and two ``dask worker`` processes on 127.0.0.1 (random free ports, no dashboard)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    address = f"tcp://127.0.0.1:{_free_port()}"
+    procs = [subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1", "--port",
+                               address.rsplit(":", 1)[1], "--no-dashboard"], env=env, cwd=tmp_path,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    for k in range(2):
+        procs.append(subprocess.Popen([sys.executable, "-m", "dask", "worker", address, "--host", "127.0.0.1",
+                                       "--nthreads", "1", "--no-dashboard", "--no-nanny", "--name", f"w{k}",
+                                       "--local-directory", str(tmp_path / f"w{k}")], env=env, cwd=tmp_path,
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+    try:
+        from distributed import Client
+
+        deadline = time.time() + 60
+        while True:
+            try:
+                with Client(address, timeout="2s") as client:
+                    client.wait_for_workers(2, timeout=max(1, deadline - time.time()))
+                    workers = set(client.scheduler_info()["workers"])
+                break
+            except OSError:
+                if time.time() > deadline or any(p.poll() is not None for p in procs):
+                    raise
+                time.sleep(0.5)
+        yield address, workers
+    finally:
+        for p in reversed(procs):
+            p.send_signal(signal.SIGINT)          # dask's processes close at once on Ctrl-C
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+def test_a_batch_on_a_real_scheduler_and_workers(first_batch, tiny_worlds, real_cluster, tmp_path):
+    address, workers = real_cluster
+    tmp = first_batch[0]
+    path = write_batch(tmp_path / "b.yaml", tiny_worlds, tmp / "data" / "sim", tmp_path / "cache",
+                       extra="scheduler: tcp://127.0.0.1:1\n")   # --scheduler overrides the file's
+    res = runner.invoke(app, ["batch", str(path), "--out", str(tmp_path / "out"), "--scheduler", address])
+    assert res.exit_code == 0, res.output
+    summary = read_batch_summary(tmp_path / "out" / "summary.json")
+    assert summary.scheduler == address and summary.workers == 2
+    assert [d.status for d in summary.drives] == ["done"] * 3
+    assert {d.worker for d in summary.drives} <= workers
+    for name in ("tiny", "tiny_b", "tiny_c"):
+        same_run(tmp_path / "out" / name, tmp / "out" / name)
+    for method in METHODS:
+        assert (tmp_path / "out" / "merged" / f"fused_{method}.csv").read_bytes() == \
+            (tmp / "out" / "merged" / f"fused_{method}.csv").read_bytes()
+    # a sweep over the batch on the same cluster
+    spec = tmp_path / "s.yaml"
+    spec.write_text(f"batch: {tmp_path / 'out'}\nmethods: [proposed]\ngrid:\n  fusion.proposed.eta_m: [0.3, 0.6]\n")
+    res = runner.invoke(app, ["sweep", str(spec), "--out", str(tmp_path / "sweep"), "--scheduler", address])
+    assert res.exit_code == 0, res.output
+    rows = list(csv.DictReader(open(tmp_path / "sweep" / "sweep.csv")))
+    assert len(rows) == 2 and all(float(r["recall"]) > 0.9 for r in rows)
+
+
+def test_drives_without_a_geo_origin_merge_only_within_one_log(first_batch, dask_client, tiny_worlds, tmp_path):
+    """Two halves of one indoor log share its frame; among drives with a geo origin it cannot be placed."""
+    from tests.pipeline.test_presets import _write_log
+
+    tmp = first_batch[0]
+    log = tmp_path / "room.log"
+    _write_log(log, np.random.default_rng(0))
+    halves = (f"  - dataset: carmen\n    location: {log}\n    frames: '0:30'\n    name: room_a\n"
+              f"  - dataset: carmen\n    location: {log}\n    frames: '30:60'\n    name: room_b\n")
+    path = write_batch(tmp_path / "b.yaml", tiny_worlds, tmp / "data" / "sim", tmp / "cache", halves)
+    result = run_batch(plan_batch(path, tmp_path / "out"), dask_client, RecordingReporter())
+    merged = result.merged
+    assert [d.name for d in merged.drives] == ["room_a", "room_b"] and merged.geo_frame is None
+    assert merged.counts["proposed"] >= 5 and merged.multi_drive["proposed"] >= 3   # the room's walls, seen by both
+    plan = plan_batch(path)
+    assert plan.merge_config == plan.drives[0].config            # fused with the drives' common preset (indoor_2d)
+    with_geo = write_batch(tmp_path / "c.yaml", tiny_worlds, tmp / "data" / "sim", tmp / "cache",
+                           f"  - world: {tiny_worlds / 'tiny.yaml'}\n" + halves)
+    result = run_batch(plan_batch(with_geo, tmp_path / "out2"), dask_client, RecordingReporter())
+    assert [d.name for d in result.merged.drives] == ["tiny"]
+    assert set(result.merged.left_out) == {"room_a", "room_b"}
+    assert "no geo origin" in result.merged.left_out["room_a"]
