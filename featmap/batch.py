@@ -223,7 +223,7 @@ def _sources(entry: DriveEntry, index: int, path: Path, sim_root: Path) -> list[
             folders = _expand(str(data_dir / "*" / f"{entry.kitti}_sync"), "kitti", path, index, dirs_only=True)
         else:
             try:
-                date, _ = parse_drive(entry.kitti)
+                date, _ = parse_drive(entry.kitti, "kitti:")
             except FeatmapError as exc:
                 raise ConfigError(f"{where}: {exc}") from None
             folders = [str((data_dir / date / f"{entry.kitti}_sync").absolute())]

@@ -32,11 +32,11 @@ POOR_NUMSATS = 4          # fewer satellites than this
 POOR_POS_ACCURACY_M = 0.5
 
 
-def parse_drive(drive: str) -> tuple[str, str]:
-    """``"2011_09_30_drive_0018"`` -> ``("2011_09_30", "0018")``."""
+def parse_drive(drive: str, flag: str = "--drive") -> tuple[str, str]:
+    """``"2011_09_30_drive_0018"`` -> ``("2011_09_30", "0018")``; ``flag`` names the input in the error."""
     match = DRIVE_RE.match(drive.strip())
     if not match:
-        raise DatasetError(f"--drive {drive!r}: expected YYYY_MM_DD_drive_NNNN, e.g. 2011_09_30_drive_0018")
+        raise DatasetError(f"{flag} {drive!r}: expected YYYY_MM_DD_drive_NNNN, e.g. 2011_09_30_drive_0018")
     return match.group(1), match.group(2)
 
 

@@ -16,24 +16,9 @@ import numpy as np
 
 from featmap.errors import InputFileError
 from featmap.evaluation.truth_metrics import GroundTruth
-from featmap.geo import GeoFrame
+from featmap.geo import GeoFrame, reproject, reproject_segments
 from featmap.io.jsonfile import read_json
 from featmap.io.sim_truth import coverage_of_frames, read_objects_local, read_simulation_json, read_walls_csv
-
-
-def _transform(points: np.ndarray, src: GeoFrame | None, dst: GeoFrame | None) -> np.ndarray:
-    """Move (K, 2) local points from the frame of ``src`` to the frame of ``dst`` (through WGS84)."""
-    if src is None or dst is None or (src.lat0_deg == dst.lat0_deg and src.lon0_deg == dst.lon0_deg):
-        return points
-    lat, lon = src.to_wgs84(points[:, 0], points[:, 1])
-    x, y = dst.to_local(lat, lon)
-    return np.column_stack([x, y])
-
-
-def _transform_segments(segments: np.ndarray, src: GeoFrame | None, dst: GeoFrame | None) -> np.ndarray:
-    if not len(segments):
-        return segments
-    return np.column_stack([_transform(segments[:, :2], src, dst), _transform(segments[:, 2:], src, dst)])
 
 
 def load_simulator_truth(truth_dir: str | Path, frame: GeoFrame | None = None,
@@ -52,7 +37,8 @@ def load_simulator_truth(truth_dir: str | Path, frame: GeoFrame | None = None,
     except (KeyError, TypeError):
         raise InputFileError(truth_dir / "simulation.json", "missing or malformed 'geo_origin'") from None
     table = read_walls_csv(truth_dir / "walls.csv")
-    walls = _transform_segments(table.walls, src, frame)
+    frame = frame or src
+    walls = reproject_segments(table.walls, src, frame)
     observed, n_returns = table.observed, table.n_returns
     if frames is not None and (truth_dir / "coverage.npz").exists():
         observed, n_returns = coverage_of_frames(truth_dir / "coverage.npz", walls, frames)
@@ -67,10 +53,10 @@ def load_simulator_truth(truth_dir: str | Path, frame: GeoFrame | None = None,
             other += [np.concatenate([ring[k], ring[(k + 1) % len(ring)]]) for k in range(len(ring))]
         elif obj.get("kind") == "pole":
             poles.append([*geom["coordinates"], obj.get("radius", 0.15)])
-    other = _transform_segments(np.asarray(other, float).reshape(-1, 4), src, frame)
+    other = reproject_segments(np.asarray(other, float).reshape(-1, 4), src, frame)
     poles = np.asarray(poles, float).reshape(-1, 3)
     if len(poles):
-        poles[:, :2] = _transform(poles[:, :2], src, frame)
+        poles[:, :2] = reproject(poles[:, :2], src, frame)
     return GroundTruth(walls=walls, building=table.building, labels=table.labels, observed=observed,
                        n_returns=n_returns, other_segments=other, poles=poles)
 

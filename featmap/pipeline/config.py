@@ -34,6 +34,13 @@ PRESETS_DIR = Path(__file__).resolve().parents[2] / "configs"
 """Named presets (``--config paper``, ``--config indoor_2d``): the YAML files in the source tree's ``configs/``."""
 
 
+def preset_names() -> list[str]:
+    """The config presets in ``configs/`` (batch files there are not configs)."""
+    if not PRESETS_DIR.is_dir():
+        return []
+    return sorted(p.stem for p in PRESETS_DIR.glob("*.yaml") if not p.stem.startswith("batch"))
+
+
 def resolve_config_path(path: str | Path) -> Path:
     """A config file's path: ``path`` itself when it exists, else the preset of that name in ``configs/``."""
     path = Path(path)
@@ -42,7 +49,7 @@ def resolve_config_path(path: str | Path) -> Path:
     preset = PRESETS_DIR / f"{path.name}.yaml"
     if preset.is_file():
         return preset
-    names = sorted(p.stem for p in PRESETS_DIR.glob("*.yaml")) if PRESETS_DIR.is_dir() else []
+    names = preset_names()
     raise ConfigError(f"--config {path}: no such file, nor a preset" + (f" ({', '.join(names)})" if names else ""))
 
 
