@@ -79,7 +79,7 @@ class RefinementRecord(_Model):
     correction_max_m: float = 0.0
     rotation_mean_deg: float = Field(0.0, description="mean heading correction per scan")
     rotation_max_deg: float = 0.0
-    residual_before_mm: Optional[float] = Field(None, description="median distance between matched segments of different scans, source poses")
+    residual_before_mm: Optional[float] = Field(None, description="mean distance between matched segments of different scans, source poses")
     residual_after_mm: Optional[float] = Field(None, description="the same after refinement")
 
 

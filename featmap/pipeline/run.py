@@ -182,7 +182,7 @@ def report_refinement(record: RefinementRecord | None, reporter: Reporter) -> No
     """One line on what pose refinement did."""
     if record is None or record.method == "none":
         return
-    agree = (f"median mismatch between scans {record.residual_before_mm:.1f} -> {record.residual_after_mm:.1f} mm"
+    agree = (f"mean mismatch between scans {record.residual_before_mm:.1f} -> {record.residual_after_mm:.1f} mm"
              if record.residual_before_mm is not None and record.residual_after_mm is not None else "no segments matched")
     if record.applied:
         reporter.info(f"pose refinement ({record.method}): moved {record.scans} scans by {100 * record.correction_mean_m:.1f} cm "

@@ -15,9 +15,9 @@ Unknowns: one correction ``c_i = (dx, dy, dyaw)`` per scan (:mod:`featmap.refine
   ``motion_sigma_m`` / ``motion_sigma_deg`` per sqrt(s)), per metre travelled and per degree turned
   (odometry, ``motion_sigma_*_per_sqrt_*``).
 
-A refinement is kept only when the median distance between matched segments of different scans
-shrinks by at least ``min_improvement`` (:func:`keep_if_better`): scans that already agree (exact poses)
-are left exactly as they were.
+A refinement is kept only when the mean distance between matched segments of different scans shrinks by
+at least ``min_improvement`` and some scan moves by at least ``min_correction_m`` (:func:`keep_if_better`):
+scans that already agree (exact poses) are left exactly as they were.
 """
 
 from __future__ import annotations
@@ -59,7 +59,8 @@ class AlignmentConfig(Section):
     motion_sigma_deg_per_sqrt_deg: float = Field(0.0, ge=0, description="relative heading prior: degrees per sqrt(degree turned) (odometry)")
     motion_floor_m: float = Field(0.001, gt=0, description="relative motion prior never tighter than this (metres)")
     motion_floor_deg: float = Field(0.01, gt=0, description="relative heading prior never tighter than this (degrees)")
-    min_improvement: float = Field(1.5, ge=1, description="keep the input poses unless the median distance between matched segments of different scans shrinks by at least this factor")
+    min_improvement: float = Field(1.5, ge=1, description="keep the input poses unless the mean distance between matched segments of different scans shrinks by at least this factor ...")
+    min_correction_m: float = Field(0.03, ge=0, description="... and some scan moves by at least this (a point 10 m from its sensor)")
 
     @field_validator("gates_m")
     @classmethod
@@ -168,24 +169,37 @@ def normal_equations(inp: RefinementInput, c: np.ndarray, m: Matches, gate: floa
 
 
 def consistency(inp: RefinementInput, corrections: np.ndarray, pairs: np.ndarray, config: AlignmentConfig) -> float:
-    """Median distance (metres) between matched segments of the scan ``pairs`` after ``corrections``
+    """Mean distance (metres) between matched segments of the scan ``pairs`` after ``corrections``
     (matches within the first gate; NaN when nothing matches): how well the scans agree with each other."""
     order = np.argsort(inp.scan, kind="stable")
     scan = inp.scan[order]
     current = correct_segments(inp.segments[order], scan, inp.anchors, corrections)
     m = segment_matches(current, scan, pairs, config.gates_m[0], config.angle_deg, config.margin_m, config.min_overlap_m)
-    return float(np.median(np.abs(m.residuals()))) if len(m) else float("nan")
+    return float(np.mean(np.abs(m.residuals()))) if len(m) else float("nan")
+
+
+LEVER_M = 10.0
+"""A correction's size is how far it moves a point this far from the sensor: ``|(dx, dy)| + LEVER_M * |dyaw|``."""
+
+
+def correction_size(corrections: np.ndarray) -> np.ndarray:
+    """(F,) how far each correction (F, 3) moves a point ``LEVER_M`` from its sensor, at most (metres)."""
+    return np.hypot(corrections[:, 0], corrections[:, 1]) + LEVER_M * np.abs(corrections[:, 2])
 
 
 def keep_if_better(inp: RefinementInput, corrections: np.ndarray, pairs: np.ndarray,
                    config: AlignmentConfig) -> tuple[bool, dict]:
-    """Whether ``corrections`` make the scans agree at least ``min_improvement`` times better than the
-    input poses (else the input poses are kept), with the two medians (mm) for the record."""
+    """Whether to apply ``corrections``: only when they make the scans agree at least ``min_improvement``
+    times better than the input poses, and move some scan by at least ``min_correction_m``. Otherwise the
+    input poses are kept: exact poses stay exact, instead of absorbing extraction noise (scans that see a
+    single wall can be made to agree perfectly by moving them a few mm) or extraction bias (the agreement
+    barely improves while the poses wander). Returns (apply, numbers for the record)."""
     before = consistency(inp, np.zeros_like(corrections), pairs, config)
     after = consistency(inp, corrections, pairs, config)
-    applied = bool(before >= config.min_improvement * after)
+    largest = float(correction_size(corrections).max()) if len(corrections) else 0.0
+    applied = bool(before >= config.min_improvement * after and largest >= config.min_correction_m)
     return applied, {"applied": applied, "residual_before_mm": round(1000 * before, 3),
-                     "residual_after_mm": round(1000 * after, 3)}
+                     "residual_after_mm": round(1000 * after, 3), "largest_correction_m": round(largest, 4)}
 
 
 def solve_normal_equations(H: sparse.spmatrix, g: np.ndarray) -> np.ndarray:
