@@ -134,48 +134,69 @@ def segment_matches(segments: np.ndarray, scan: np.ndarray, pairs: np.ndarray, g
         return Matches.empty()
     count = np.bincount(scan, minlength=n_scans)
     start = np.concatenate([[0], np.cumsum(count)[:-1]])
-    both = np.concatenate([pairs, pairs[:, ::-1]])
-    p1, p2 = segments[:, :2], segments[:, 2:]
-    vec = p2 - p1
-    length = np.hypot(vec[:, 0], vec[:, 1])
-    unit = vec / np.maximum(length, 1e-12)[:, None]
+    geo = _Geometry(segments)
     sin_max = np.sin(np.deg2rad(angle_deg))
+    reach = gate + margin
     parts = []
-    for a, b, pid in _combinations(both, start, count, chunk):
-        ok = (length[a] > 0) & (length[b] > 0)
-        ok &= np.abs(unit[a, 0] * unit[b, 1] - unit[a, 1] * unit[b, 0]) <= sin_max
+    for a, b, pid in _combinations(np.asarray(pairs, np.int64), start, count, chunk):
+        # Cheap tests first: near-parallel, and the two segments' circles (plus the gate) touch.
+        ok = np.abs(geo.unit[a, 0] * geo.unit[b, 1] - geo.unit[a, 1] * geo.unit[b, 0]) <= sin_max
         a, b, pid = a[ok], b[ok], pid[ok]
-        ub = unit[b]
-        nb = np.column_stack([-ub[:, 1], ub[:, 0]])
-        base = p1[b]
-        s1 = np.einsum("ij,ij->i", p1[a] - base, ub)
-        s2 = np.einsum("ij,ij->i", p2[a] - base, ub)
-        lo_s, hi_s = -margin, length[b] + margin
-        ds = s2 - s1
-        safe = np.where(np.abs(ds) > 1e-12, ds, 1e-12)
-        t1 = np.clip((lo_s - s1) / safe, 0.0, 1.0)
-        t2 = np.clip((hi_s - s1) / safe, 0.0, 1.0)
-        t_lo, t_hi = np.minimum(t1, t2), np.maximum(t1, t2)
-        overlap = (t_hi - t_lo) * length[a]
-        r_lo = np.einsum("ij,ij->i", p1[a] + t_lo[:, None] * vec[a] - base, nb)
-        r_hi = np.einsum("ij,ij->i", p1[a] + t_hi[:, None] * vec[a] - base, nb)
-        far = np.maximum(np.abs(r_lo), np.abs(r_hi))
-        ok = (overlap >= min_overlap) & (far <= gate)
-        if not ok.any():
-            continue
-        a, b, pid, t_lo, t_hi, overlap, far, nb = a[ok], b[ok], pid[ok], t_lo[ok], t_hi[ok], overlap[ok], far[ok], nb[ok]
-        # One match per source segment and target scan: the nearest.
-        order = np.lexsort((far, pid, a))
-        key_a, key_p = a[order], pid[order]
-        first = np.ones(len(order), bool)
-        first[1:] = (key_a[1:] != key_a[:-1]) | (key_p[1:] != key_p[:-1])
-        sel = order[first]
-        parts.append((a[sel], b[sel], t_lo[sel], t_hi[sel], overlap[sel], nb[sel]))
+        d = geo.mid[a] - geo.mid[b]
+        ok = np.hypot(d[:, 0], d[:, 1]) <= geo.half[a] + geo.half[b] + reach
+        a, b, pid = a[ok], b[ok], pid[ok]
+        for src, tgt, key in ((a, b, 2 * pid), (b, a, 2 * pid + 1)):      # a on b's line, and b on a's
+            found = _overlaps(geo, src, tgt, key, gate, margin, min_overlap)
+            if found is not None:
+                parts.append(found)
     if not parts:
         return Matches.empty()
-    a, b, t_lo, t_hi, overlap, nb = (np.concatenate(x) for x in zip(*parts))
+    src, tgt, t_lo, t_hi, overlap = (np.concatenate(x) for x in zip(*parts))
     mid, half = 0.5 * (t_lo + t_hi), _GAUSS * (t_hi - t_lo)
-    pts = np.concatenate([p1[a] + (mid - half)[:, None] * vec[a], p1[a] + (mid + half)[:, None] * vec[a]])
+    p1, vec = geo.p1[src], geo.vec[src]
+    pts = np.concatenate([p1 + (mid - half)[:, None] * vec, p1 + (mid + half)[:, None] * vec])
     twice = lambda x: np.concatenate([x, x])  # noqa: E731
-    return Matches(point=pts, source=twice(scan[a]), target=twice(scan[b]), base=twice(p1[b]), normal=twice(nb),
-                   weight=twice(0.5 * overlap), n_pairs=len(a))
+    return Matches(point=pts, source=twice(scan[src]), target=twice(scan[tgt]), base=twice(geo.p1[tgt]),
+                   normal=twice(geo.normal[tgt]), weight=twice(0.5 * overlap), n_pairs=len(src))
+
+
+class _Geometry:
+    """Per-segment quantities used by the matching: endpoints, direction, unit normal, midpoint, half length."""
+
+    def __init__(self, segments: np.ndarray):
+        self.p1 = segments[:, :2]
+        self.vec = segments[:, 2:] - self.p1
+        self.length = np.hypot(self.vec[:, 0], self.vec[:, 1])
+        self.unit = np.where(self.length[:, None] > 0, self.vec / np.maximum(self.length, 1e-12)[:, None], 0.0)
+        self.normal = np.column_stack([-self.unit[:, 1], self.unit[:, 0]])
+        self.mid = self.p1 + 0.5 * self.vec
+        self.half = 0.5 * self.length
+
+
+def _overlaps(geo: _Geometry, src: np.ndarray, tgt: np.ndarray, key: np.ndarray, gate: float, margin: float,
+              min_overlap: float):
+    """The part of each source segment whose projection falls on its target (extended by ``margin``), kept
+    when it is at least ``min_overlap`` long and lies within ``gate`` of the target's line at both ends; one
+    target per (source segment, ``key``), the nearest. Returns (src, tgt, t_lo, t_hi, overlap) or None."""
+    base, ub, nb = geo.p1[tgt], geo.unit[tgt], geo.normal[tgt]
+    p1, vec = geo.p1[src], geo.vec[src]
+    rel = p1 - base
+    s1 = rel[:, 0] * ub[:, 0] + rel[:, 1] * ub[:, 1]
+    ds = vec[:, 0] * ub[:, 0] + vec[:, 1] * ub[:, 1]
+    safe = np.where(np.abs(ds) > 1e-12, ds, 1e-12)
+    t1 = np.clip((-margin - s1) / safe, 0.0, 1.0)
+    t2 = np.clip((geo.length[tgt] + margin - s1) / safe, 0.0, 1.0)
+    t_lo, t_hi = np.minimum(t1, t2), np.maximum(t1, t2)
+    overlap = (t_hi - t_lo) * geo.length[src]
+    r0 = rel[:, 0] * nb[:, 0] + rel[:, 1] * nb[:, 1]
+    dr = vec[:, 0] * nb[:, 0] + vec[:, 1] * nb[:, 1]
+    far = np.maximum(np.abs(r0 + t_lo * dr), np.abs(r0 + t_hi * dr))
+    ok = (overlap >= min_overlap) & (far <= gate) & (geo.length[src] > 0) & (geo.length[tgt] > 0)
+    if not ok.any():
+        return None
+    src, tgt, key, t_lo, t_hi, overlap, far = src[ok], tgt[ok], key[ok], t_lo[ok], t_hi[ok], overlap[ok], far[ok]
+    order = np.lexsort((far, key, src))
+    first = np.ones(len(order), bool)
+    first[1:] = (src[order][1:] != src[order][:-1]) | (key[order][1:] != key[order][:-1])
+    sel = order[first]
+    return src[sel], tgt[sel], t_lo[sel], t_hi[sel], overlap[sel]
