@@ -525,7 +525,6 @@ def print_timing(timing: dict, console: Console) -> None:
         table.add_row(label, f"{rec['total_s']:.1f}", f"{rec['refinement_s']:.2f}", added,
                       f"{100 * rec['refinement_s'] / rest:.0f}%" if rest > 0 else "-")
     console.print(table)
-    console.print("(a cleaner map also fuses faster, so a refined run can take less time in all than an unrefined one)")
 
 
 # --- main --------------------------------------------------------------------------------------------
