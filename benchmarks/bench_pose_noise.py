@@ -71,7 +71,7 @@ from featmap.simulation.procedural import split_seeds
 from featmap.simulation.simulate import oxts_drift, perturb_poses
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_generalization import DRIVE, drive_root, ensure_drive  # noqa: E402
+from bench_generalization import DRIVE, ensure_drive  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 LEVELS = ((0.1, 0.2), (0.3, 0.5), (1.0, 1.0))
