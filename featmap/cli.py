@@ -361,6 +361,7 @@ def simulate(
     sensor: str = typer.Option("hdl64", "--sensor", help="hdl64 (KITTI), vlp32 (the paper's PreScan sensor), vls128 or vlp16."),
     noise: float = typer.Option(0.02, "--noise", min=0.0, help="Gaussian range noise sigma, metres."),
     pose_noise: str = typer.Option("0,0", "--pose-noise", help="OXTS pose error: position sigma (m), yaw sigma (deg)."),
+    pose_noise_tau: float = typer.Option(2.0, "--pose-noise-tau", help="Correlation time of the OXTS pose error, seconds (Gauss-Markov drift)."),
     dropout: float = typer.Option(0.0, "--dropout", min=0.0, max=0.99, help="Probability that a return is lost."),
     seed: int = typer.Option(0, "--seed", help="Random seed (same seed, byte-identical drive)."),
     drive_id: str = typer.Option("0001", "--drive-id", help="Four-digit drive number of the written drive."),
@@ -383,7 +384,8 @@ def simulate(
     reporter = _reporter()
     start = time.perf_counter()
     drive = simulate_drive(w, out, SENSORS[sensor], frames, noise, dropout, _parse_pose_noise(pose_noise), seed,
-                           drive_id, progress=lambda it, n: track(reporter, it, n, f"simulating {w.name}"))
+                           drive_id, progress=lambda it, n: track(reporter, it, n, f"simulating {w.name}"),
+                           pose_noise_tau_s=pose_noise_tau)
     seconds = time.perf_counter() - start
     typer.echo(f"wrote {drive.n_frames} frames of {w.name} ({sensor}) to {drive.drive_dir} "
                f"in {seconds:.1f} s ({drive.n_frames / seconds:.1f} frames/s); ground truth in "

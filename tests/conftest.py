@@ -73,3 +73,19 @@ def dask_client():
     yield client
     client.close()
     cluster.close()
+
+
+def untimed_metrics(folder: Path) -> dict:
+    """A run's metrics.json without what depends on timing or on the cache (timings, seconds, scans
+    extracted now or served from the cache): what two equivalent runs must agree on."""
+    import json
+
+    metrics = json.loads((Path(folder) / "metrics.json").read_text())
+    metrics.pop("timings_s")
+    for record in metrics["methods"].values():
+        record.pop("seconds")
+    if metrics.get("refinement"):
+        metrics["refinement"].pop("seconds")
+    metrics["scans"].pop("extracted_now")
+    metrics["scans"].pop("from_cache")
+    return metrics

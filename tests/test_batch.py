@@ -16,6 +16,7 @@ import pytest
 from typer.testing import CliRunner
 
 from featmap.cli import app
+from tests.conftest import untimed_metrics
 from featmap.io.batch_records import read_batch_summary, read_drive_key, read_merged_record
 from featmap.io.segments_csv import read_fused_csv
 
@@ -46,16 +47,7 @@ def same_run(a: Path, b: Path) -> None:
     for name in sorted(names_a - skip):
         assert (a / name).read_bytes() == (b / name).read_bytes(), name
 
-    def untimed(folder):
-        m = json.loads((folder / "metrics.json").read_text())
-        m.pop("timings_s")
-        m["scans"].pop("extracted_now")
-        m["scans"].pop("from_cache")
-        for record in m["methods"].values():
-            record.pop("seconds")
-        return m
-
-    assert untimed(a) == untimed(b)
+    assert untimed_metrics(a) == untimed_metrics(b)
 
 
 @pytest.fixture(scope="module")

@@ -64,6 +64,25 @@ class MethodRecord(_Model):
     scores: dict[str, dict[str, Score]] = Field(default_factory=dict)
 
 
+class RefinementRecord(_Model):
+    """What pose refinement did: its method, whether its corrections were applied, their size and time."""
+
+    method: str = Field(description="refinement method (none: poses as the source gave them)")
+    applied: bool = Field(description="whether the corrections were applied (kept only when the scans then agree better)")
+    seconds: float
+    scans: int = Field(description="scans whose poses were refined or interpolated")
+    keyframes: Optional[int] = Field(None, description="scans solved (the others got interpolated corrections)")
+    iterations: int = 0
+    matches: int = Field(0, description="segment pairs of different scans matched in the last iteration")
+    converged: bool = True
+    correction_mean_m: float = Field(0.0, description="mean translation correction per scan")
+    correction_max_m: float = 0.0
+    rotation_mean_deg: float = Field(0.0, description="mean heading correction per scan")
+    rotation_max_deg: float = 0.0
+    residual_before_mm: Optional[float] = Field(None, description="mean distance between matched segments of different scans, source poses")
+    residual_after_mm: Optional[float] = Field(None, description="the same after refinement")
+
+
 class RunMetrics(_Model):
     schema_version: int = SCHEMA_VERSION
     featmap_version: str
@@ -75,6 +94,7 @@ class RunMetrics(_Model):
     segments: int
     timings_s: dict[str, Optional[float]]
     methods: dict[str, MethodRecord]
+    refinement: Optional[RefinementRecord] = Field(None, description="pose refinement before fusion (None: runs before it existed)")
 
     def primary_scores(self, method: str) -> dict[str, Score]:
         """The primary evaluator's scores of ``method`` ({} when the run had no reference)."""

@@ -10,11 +10,13 @@ from pathlib import Path
 
 from featmap.outputs.base import Output, OutputConfig, RunProducts
 from featmap.outputs.comparison import Comparison, write_comparison
-from featmap.outputs.maps import FusedGeojson, HtmlMap, Kml, LayersGeojson, OverviewPng, tiles_of
-from featmap.outputs.tables import FusedCsv, SegmentsCsv, TrajectoryCsv
+from featmap.outputs.maps import (FusedGeojson, HtmlMap, Kml, LayersGeojson, OverviewPng, RefinedTrajectoryGeojson,
+                                  tiles_of)
+from featmap.outputs.tables import FusedCsv, PoseCorrectionsCsv, RefinedTrajectoryCsv, SegmentsCsv, TrajectoryCsv
 
-OUTPUTS: tuple[Output, ...] = (SegmentsCsv(), FusedCsv(), TrajectoryCsv(), FusedGeojson(), LayersGeojson(), Kml(),
-                               HtmlMap(), OverviewPng(), Comparison())
+OUTPUTS: tuple[Output, ...] = (SegmentsCsv(), FusedCsv(), TrajectoryCsv(), RefinedTrajectoryCsv(), PoseCorrectionsCsv(),
+                               FusedGeojson(), LayersGeojson(), RefinedTrajectoryGeojson(), Kml(), HtmlMap(),
+                               OverviewPng(), Comparison())
 
 
 def write_outputs(products: RunProducts, folder: str | Path, outputs: tuple[Output, ...] = OUTPUTS) -> list[str]:

@@ -36,12 +36,16 @@ class RunProducts:
         table: the extracted segments (world frame) with their scans.
         results: method name -> its fusion result.
         frames: (F,) frame numbers of ``poses``.
-        poses: (F, 4, 4) ``T_world_sensor`` of the scans processed.
+        poses: (F, 4, 4) ``T_world_sensor`` of the scans processed: the poses the map was built from
+            (refined when pose refinement ran).
         geo_frame: WGS84 origin of the local frame, or None (then no WGS84 output is written).
         truth: the ground truth the run was scored against (walls (W, 4), labels, ...), or None.
         config_yaml: the resolved configuration, as saved in ``config.yaml``.
         metrics: the run's record (``metrics.json``).
         output: the ``output:`` config section.
+        source_poses: (F, 4, 4) the poses as the source gave them (None: the same as ``poses``).
+        corrections: (F, 3) per-scan pose corrections ``dx, dy`` (m) and ``dyaw`` (rad) of the refinement
+            (:mod:`featmap.refinement.base`), or None when no refinement ran.
     """
 
     table: SegmentTable
@@ -53,11 +57,18 @@ class RunProducts:
     config_yaml: str
     metrics: RunMetrics
     output: OutputConfig
+    source_poses: np.ndarray | None = None
+    corrections: np.ndarray | None = None
 
     @property
     def trajectory(self) -> np.ndarray:
-        """(F, 2) sensor positions."""
+        """(F, 2) sensor positions (of the poses the map was built from)."""
         return self.poses[:, :2, 3]
+
+    @property
+    def input_poses(self) -> np.ndarray:
+        """(F, 4, 4) the poses as the source gave them."""
+        return self.poses if self.source_poses is None else self.source_poses
 
 
 class Output(Protocol):

@@ -65,6 +65,26 @@ class LayersGeojson:
         return names
 
 
+class RefinedTrajectoryGeojson:
+    """The refined trajectory as GeoJSON (WGS84), when pose refinement ran."""
+
+    name = "trajectory_refined.geojson"
+    needs_geo = True
+
+    def enabled(self, config: OutputConfig) -> bool:
+        return config.geojson
+
+    def write(self, products: RunProducts, folder: Path) -> list[str]:
+        if products.corrections is None:
+            return []
+        traj = products.trajectory
+        props = [{"frame": int(f), "dx_m": round(float(c[0]), 4), "dy_m": round(float(c[1]), 4),
+                  "dyaw_deg": round(float(np.rad2deg(c[2])), 5)} for f, c in zip(products.frames[1:], products.corrections[1:])]
+        write_segments_geojson(folder / "trajectory_refined.geojson", np.column_stack([traj[:-1], traj[1:]]),
+                               products.geo_frame, props, {"layer": "trajectory_refined"})
+        return ["trajectory_refined.geojson"]
+
+
 class Kml:
     name = "map.kml"
     needs_geo = True

@@ -1,4 +1,5 @@
-"""The CSV files of the output contract: ``segments.csv``, ``fused_<method>.csv``, ``trajectory.csv``."""
+"""The CSV files of the output contract: ``segments.csv``, ``fused_<method>.csv``, ``trajectory.csv``; and, when
+pose refinement ran, ``trajectory_refined.csv`` and ``pose_corrections.csv``."""
 
 from __future__ import annotations
 
@@ -55,5 +56,46 @@ class TrajectoryCsv:
         return True
 
     def write(self, products: RunProducts, folder: Path) -> list[str]:
-        atomic_write_text(folder / "trajectory.csv", trajectory_csv_text(products.frames, products.poses))
+        atomic_write_text(folder / "trajectory.csv", trajectory_csv_text(products.frames, products.input_poses))
         return ["trajectory.csv"]
+
+
+class RefinedTrajectoryCsv:
+    """The refined poses the map was built from, in ``trajectory.csv``'s columns (when refinement ran)."""
+
+    name = "trajectory_refined.csv"
+    needs_geo = False
+
+    def enabled(self, config: OutputConfig) -> bool:
+        return True
+
+    def write(self, products: RunProducts, folder: Path) -> list[str]:
+        if products.corrections is None:
+            return []
+        atomic_write_text(folder / "trajectory_refined.csv", trajectory_csv_text(products.frames, products.poses))
+        return ["trajectory_refined.csv"]
+
+
+def corrections_csv_text(frames: list[int], corrections: np.ndarray) -> str:
+    """``frame,dx_m,dy_m,dyaw_deg`` per frame: the planar correction of each pose (world frame; the scan is
+    turned by ``dyaw`` about its own sensor position, then moved by ``dx, dy``)."""
+    lines = ["frame,dx_m,dy_m,dyaw_deg"]
+    for frame, (dx, dy, dyaw) in zip(frames, corrections):
+        lines.append(f"{frame},{dx:.4f},{dy:.4f},{np.rad2deg(dyaw):.5f}")
+    return "\n".join(lines) + "\n"
+
+
+class PoseCorrectionsCsv:
+    """Per-scan pose corrections of the refinement (when it ran; all zero when they were not applied)."""
+
+    name = "pose_corrections.csv"
+    needs_geo = False
+
+    def enabled(self, config: OutputConfig) -> bool:
+        return True
+
+    def write(self, products: RunProducts, folder: Path) -> list[str]:
+        if products.corrections is None:
+            return []
+        atomic_write_text(folder / "pose_corrections.csv", corrections_csv_text(products.frames, products.corrections))
+        return ["pose_corrections.csv"]

@@ -1,7 +1,7 @@
 """The configuration of a run: every stage's section, composed (defaults < YAML < ``--set``).
 
-Each section is defined beside its code: ``extraction`` by the extractor registry, ``fusion`` by the
-fusion registry, ``evaluation`` by the evaluation plug-ins, ``output`` by the output plug-ins.
+Each section is defined beside its code: ``extraction`` by the extractor registry, ``refinement`` by the
+pose-refinement registry, ``fusion`` by the fusion registry, ``evaluation`` by the evaluation plug-ins, ``output`` by the output plug-ins.
 ``configs/default.yaml`` is the commented rendering of these defaults (``featmap config`` prints it; a
 test keeps them identical).
 """
@@ -18,10 +18,12 @@ from featmap.extraction import ExtractionConfig
 from featmap.fusion import FusionConfig
 from featmap.io.atomic import atomic_write_text
 from featmap.outputs import OutputConfig
+from featmap.refinement import RefinementConfig
 
 
 class FeatmapConfig(Section):
     extraction: ExtractionConfig = ExtractionConfig()  # type: ignore[valid-type]
+    refinement: RefinementConfig = RefinementConfig()  # type: ignore[valid-type]
     fusion: FusionConfig = FusionConfig()  # type: ignore[valid-type]
     evaluation: EvaluationConfig = EvaluationConfig()
     output: OutputConfig = OutputConfig()

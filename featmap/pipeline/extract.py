@@ -32,6 +32,7 @@ class Extraction:
         scans: sensor-frame segments of each of those frames.
         poses: (F, 4, 4) ``T_world_sensor`` of those frames (the source's poses).
         dimension: 2 or 3.
+        timestamps: (F,) seconds of those frames (the scans' timestamps).
         extracted_now, from_cache: how many scans were extracted in this call or came from the store.
         skipped: frame -> reason, for unreadable scans left out (``skip_bad_scans``).
         seconds: wall-clock time of the whole extraction; scan_seconds: per extracted scan.
@@ -48,6 +49,7 @@ class Extraction:
     seconds: float = 0.0
     scan_seconds: list[float] = field(default_factory=list)
     discarded: list[str] = field(default_factory=list)
+    timestamps: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def world_table(self, poses: np.ndarray | None = None) -> SegmentTable:
         """Every segment in the world frame with its scan (frame number) and per-segment columns.
@@ -96,6 +98,7 @@ def extract_source(source: ScanSource, config: ExtractionConfig, store: SegmentS
     extractor = extractor_for(source.dimension, config)
     section = getattr(config, extractor.name)
     results: dict[int, ScanSegments] = {}
+    stamps: dict[int, float] = {}
     out = Extraction(frames=[], scans=[], poses=np.zeros((0, 4, 4)), dimension=source.dimension)
     start = time.perf_counter()
     with reporter.progress(f"extracting {source.name}", len(source)) as advance:
@@ -109,6 +112,7 @@ def extract_source(source: ScanSource, config: ExtractionConfig, store: SegmentS
                     out.skipped[frame] = str(exc)
                     advance(1)
                     continue
+                stamps[frame] = float(scan.timestamp)
                 key = scan_key(scan.points, extractor, section)
                 cached = store.get(key)
                 if cached is not None:
@@ -128,6 +132,7 @@ def extract_source(source: ScanSource, config: ExtractionConfig, store: SegmentS
     out.discarded = list(store.discarded)
     out.frames = [f for f in source.frames if f in results]
     out.scans = [results[f] for f in out.frames]
+    out.timestamps = np.array([stamps[f] for f in out.frames], dtype=float)
     poses = source.poses()
     position = {f: i for i, f in enumerate(source.frames)}
     out.poses = poses[[position[f] for f in out.frames]] if out.frames else np.zeros((0, 4, 4))

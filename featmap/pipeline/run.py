@@ -1,8 +1,8 @@
 """One run: a scan source in, a run folder out.
 
 :meth:`MappingPipeline.run` opens the run folder (so a bad ``--out`` fails first), extracts every scan
-through the segment store and the executor, moves the segments to the world frame, fuses them with every
-requested method, scores the results with every evaluation plug-in that finds its reference, writes the
+through the segment store and the executor, refines the scans' poses from their segments (``refinement``),
+moves the segments to the world frame with those poses, fuses them with every requested method, scores the results with every evaluation plug-in that finds its reference, writes the
 output plug-ins and the run's record (``config.yaml``, ``metrics.json``) into the folder, swaps it into
 place, and reports a summary through the reporter.
 """
@@ -17,13 +17,14 @@ from featmap import __version__
 from featmap.datasets.base import ScanSource
 from featmap.evaluation import EVALUATORS, EvaluationContext, Evaluator, Reference
 from featmap.io.atomic import atomic_write_text
-from featmap.io.run_metrics import (GeoRecord, MethodRecord, RunMetrics, ScanCounts, SourceRecord,
-                                    write_run_metrics)
+from featmap.io.run_metrics import (GeoRecord, MethodRecord, RefinementRecord, RunMetrics, ScanCounts,
+                                    SourceRecord, write_run_metrics)
 from featmap.outputs import OUTPUTS, Output, RunProducts, write_outputs
 from featmap.pipeline.config import FeatmapConfig
 from featmap.pipeline.executor import Executor, SerialExecutor
 from featmap.pipeline.extract import Extraction, extract_source
 from featmap.pipeline.fuse import MethodRun, fuse_methods, warm_up
+from featmap.pipeline.refine import RefinementRun, refine_extraction
 from featmap.pipeline.run_folder import RunFolder
 from featmap.pipeline.segment_store import SegmentStore
 from featmap.reporting import NullReporter, Reporter
@@ -90,12 +91,14 @@ class MappingPipeline:
             extraction = self.extract(source)
             for message in extraction.discarded:
                 self.reporter.warning(f"discarded a corrupt cache entry and extracted again: {message}")
-            table = extraction.world_table()
+            refinement = refine_extraction(extraction, self.config.refinement)
+            poses = refinement.poses
+            table = extraction.world_table(poses)
             import_seconds = warm_up(self.methods)
             runs = fuse_methods(table, self.methods, self.config.fusion, self.reporter)
             t_eval = time.perf_counter()
             context = EvaluationContext(source.location, extraction.frames, source.geo_origin, self.config.evaluation,
-                                        extraction.world_points(), table.segments)
+                                        extraction.world_points(poses), table.segments)
             references = prepare_references(context)
             scores = score_methods(runs, references)
             eval_seconds = time.perf_counter() - t_eval
@@ -116,17 +119,21 @@ class MappingPipeline:
                 segments=len(table),
                 timings_s={"extraction": round(extraction.seconds, 3),
                            "extraction_per_scan_median": _median(extraction.scan_seconds),
+                           "refinement": round(refinement.seconds, 3),
                            "fusion_library_loading": round(import_seconds, 3),
                            **{f"fusion_{r.name}": round(r.seconds, 4) for r in runs},
                            "evaluation": round(eval_seconds, 3)},
                 methods={r.name: MethodRecord(count=len(r.result), clusters_dropped=r.result.clusters_dropped,
                                               seconds=round(r.seconds, 4), scores=scores[r.name]) for r in runs},
+                refinement=refinement_record(refinement),
             )
             primary = references.get(metrics.primary)
             truth = primary[1].data if primary is not None and hasattr(primary[1].data, "walls") else None
             products = RunProducts(table=table, results={r.name: r.result for r in runs}, frames=extraction.frames,
-                                   poses=extraction.poses, geo_frame=source.geo_origin, truth=truth,
-                                   config_yaml=self.config.to_yaml(), metrics=metrics, output=self.config.output)
+                                   poses=poses, geo_frame=source.geo_origin, truth=truth,
+                                   config_yaml=self.config.to_yaml(), metrics=metrics, output=self.config.output,
+                                   source_poses=extraction.poses,
+                                   corrections=None if refinement.method == "none" else refinement.result.corrections)
             t_write = time.perf_counter()
             files = write_outputs(products, folder.tmp, self.outputs)
             atomic_write_text(folder.tmp / "config.yaml", products.config_yaml)
@@ -140,6 +147,26 @@ class MappingPipeline:
         return result
 
 
+def refinement_record(run: RefinementRun) -> RefinementRecord:
+    """The ``refinement`` record of metrics.json."""
+    r = run.result
+    moved, turned = r.translation_m, r.rotation_deg
+    stats = r.stats
+
+    def rounded(value, nd):
+        return None if value is None or value != value else round(float(value), nd)
+
+    return RefinementRecord(method=run.method, applied=bool(stats.get("applied", False)), seconds=round(run.seconds, 3),
+                            scans=len(run.frames), keyframes=stats.get("keyframes"), iterations=r.iterations,
+                            matches=r.matches, converged=r.converged,
+                            correction_mean_m=round(float(moved.mean()), 4) if len(moved) else 0.0,
+                            correction_max_m=round(float(moved.max()), 4) if len(moved) else 0.0,
+                            rotation_mean_deg=round(float(turned.mean()), 4) if len(turned) else 0.0,
+                            rotation_max_deg=round(float(turned.max()), 4) if len(turned) else 0.0,
+                            residual_before_mm=rounded(stats.get("residual_before_mm"), 3),
+                            residual_after_mm=rounded(stats.get("residual_after_mm"), 3))
+
+
 def _median(values: list[float]) -> float | None:
     import statistics
 
@@ -149,6 +176,21 @@ def _median(values: list[float]) -> float | None:
 SUMMARY_COLUMNS = [("count_ratio", 2, "count_ratio"), ("precision", 3, "precision"), ("recall", 3, "recall"),
                    ("redundancy", 2, "redundancy"), ("offset_cm", 1, "offset cm"), ("corner_err_cm", 1, "corner cm"),
                    ("compression", 1, "compression")]
+
+
+def report_refinement(record: RefinementRecord | None, reporter: Reporter) -> None:
+    """One line on what pose refinement did."""
+    if record is None or record.method == "none":
+        return
+    agree = (f"mean mismatch between scans {record.residual_before_mm:.1f} -> {record.residual_after_mm:.1f} mm"
+             if record.residual_before_mm is not None and record.residual_after_mm is not None else "no segments matched")
+    if record.applied:
+        reporter.info(f"pose refinement ({record.method}): moved {record.scans} scans by {100 * record.correction_mean_m:.1f} cm "
+                      f"and {record.rotation_mean_deg:.2f} deg on average (max {100 * record.correction_max_m:.1f} cm, "
+                      f"{record.rotation_max_deg:.2f} deg), {agree}, {record.seconds:.1f} s")
+    else:
+        reporter.info(f"pose refinement ({record.method}): kept the source poses ({agree}: not a clear improvement), "
+                      f"{record.seconds:.1f} s")
 
 
 def report_run(result: RunResult, reporter: Reporter) -> None:
@@ -174,6 +216,7 @@ def report_run(result: RunResult, reporter: Reporter) -> None:
     reporter.info(f"extraction {t['extraction']:.1f} s ({m.scans.extracted_now} scans extracted, {m.scans.from_cache} "
                   "from cache" + (f", median {1000 * per_scan:.0f} ms/scan" if per_scan else "")
                   + f"); total {t['total']:.1f} s")
+    report_refinement(m.refinement, reporter)
     if m.source.skipped:
         reporter.warning(f"skipped {len(m.source.skipped)} bad scan(s): " + "; ".join(list(m.source.skipped.values())[:3]))
     if m.source.flags.get("poor_gps"):

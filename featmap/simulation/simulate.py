@@ -6,8 +6,8 @@ KITTI-like ``T_velo_imu`` (velodyne origin ``sensor.height_m`` above flat ground
 the vehicle stands on the street plane: its height follows the slope and it pitches and rolls
 with it, and the OXTS packets carry that altitude, pitch and roll, so pykitti's poses stay exact. Rays are cast from the
 true velodyne pose (no motion distortion: every scan is an instantaneous sweep); the OXTS packets
-carry the true pose, or a perturbed one with ``pose_noise`` (a smooth Gauss-Markov error with a 2 s
-correlation time, the way GPS/INS errors drift rather than jump).
+carry the true pose, or a perturbed one with ``pose_noise`` (a smooth Gauss-Markov error with a
+``pose_noise_tau_s`` correlation time, 2 s by default, the way GPS/INS errors drift rather than jump).
 
 Ground truth written to ``<drive>/truth/``:
 
@@ -108,8 +108,16 @@ def write_calibration(calib_dir: Path, T_velo_imu: np.ndarray) -> None:
     write_calib_file(calib_dir / "calib_cam_to_cam.txt", cam)
 
 
-def gauss_markov(rng: np.random.Generator, n: int, sigma: float, dt_s: float, tau_s: float = 2.0) -> np.ndarray:
-    """(n,) stationary first-order Gauss-Markov sequence with std ``sigma`` and correlation time ``tau_s``."""
+DEFAULT_POSE_NOISE_TAU_S = 2.0
+"""Correlation time of the simulated OXTS error unless ``pose_noise_tau_s`` says otherwise (seconds)."""
+
+
+def gauss_markov(rng: np.random.Generator, n: int, sigma: float, dt_s: float,
+                 tau_s: float = DEFAULT_POSE_NOISE_TAU_S) -> np.ndarray:
+    """(n,) stationary first-order Gauss-Markov sequence with std ``sigma`` and correlation time ``tau_s``,
+    ``dt_s`` seconds apart."""
+    if tau_s <= 0:
+        raise FeatmapError(f"pose-noise correlation time {tau_s} s: must be positive")
     if sigma <= 0 or n == 0:
         return np.zeros(n)
     a = np.exp(-dt_s / tau_s)
@@ -118,6 +126,63 @@ def gauss_markov(rng: np.random.Generator, n: int, sigma: float, dt_s: float, ta
     shocks = rng.normal(0, sigma * np.sqrt(1 - a * a), n)
     for k in range(1, n):
         out[k] = a * out[k - 1] + shocks[k]
+    return out
+
+
+def gauss_markov_at(rng: np.random.Generator, times: np.ndarray, sigma: float,
+                    tau_s: float = DEFAULT_POSE_NOISE_TAU_S) -> np.ndarray:
+    """(n,) stationary first-order Gauss-Markov process with std ``sigma`` and correlation time ``tau_s``
+    sampled at increasing ``times`` (n,) seconds (any spacing; the same draws as :func:`gauss_markov`)."""
+    if tau_s <= 0:
+        raise FeatmapError(f"pose-noise correlation time {tau_s} s: must be positive")
+    times = np.asarray(times, float).reshape(-1)
+    n = len(times)
+    if sigma <= 0 or n == 0:
+        return np.zeros(n)
+    a = np.exp(-np.maximum(np.diff(times, prepend=times[0]), 0.0) / tau_s)     # a repeated or earlier time: no decay
+    out = np.empty(n)
+    out[0] = rng.normal(0, sigma)
+    shocks = rng.normal(0, sigma * np.sqrt(1 - a * a), n)
+    for k in range(1, n):
+        out[k] = a[k] * out[k - 1] + shocks[k]
+    return out
+
+
+def oxts_drift(rng: np.random.Generator, times: np.ndarray, pose_noise: tuple[float, float],
+               tau_s: float = DEFAULT_POSE_NOISE_TAU_S) -> np.ndarray:
+    """(n, 3) OXTS pose error ``x, y`` (metres, world frame) and ``yaw`` (radians) at ``times`` (n,) seconds.
+
+    Each axis is an independent first-order Gauss-Markov process (:func:`gauss_markov_at`) with std
+    ``pose_noise = (metres, degrees)`` and correlation time ``tau_s``; drawn from ``rng`` in the order
+    x, y, yaw, as :func:`simulate_drive` draws them.
+    """
+    return np.column_stack([gauss_markov_at(rng, times, pose_noise[0], tau_s),
+                            gauss_markov_at(rng, times, pose_noise[0], tau_s),
+                            gauss_markov_at(rng, times, np.deg2rad(pose_noise[1]), tau_s)])
+
+
+def perturb_poses(T_world_sensor: np.ndarray, error: np.ndarray, T_sensor_body: np.ndarray | None = None) -> np.ndarray:
+    """Poses with an OXTS-style error: the body (IMU) moved by ``error[:, :2]`` and turned by ``error[:, 2]``
+    about its own position, in the world frame, the sensor riding on it.
+
+    Args:
+        T_world_sensor: (F, 4, 4) true poses.
+        error: (F, 3) ``dx, dy, dyaw`` (metres, radians), e.g. from :func:`oxts_drift`.
+        T_sensor_body: (4, 4) the body's pose in the sensor frame (``T_velo_imu`` of a KITTI drive);
+            None when the pose is the sensor's own (a 2D laser log).
+    Returns:
+        (F, 4, 4) perturbed ``T_world_sensor``: what :func:`simulate_drive` with the same error writes.
+    """
+    T = np.asarray(T_world_sensor, float)
+    error = np.asarray(error, float).reshape(-1, 3)
+    body = T[:, :3, 3] if T_sensor_body is None else (T @ np.asarray(T_sensor_body, float)[:, 3])[:, :3]
+    c, s = np.cos(error[:, 2]), np.sin(error[:, 2])
+    out = T.copy()
+    rot = np.zeros((len(T), 3, 3))
+    rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1], rot[:, 2, 2] = c, -s, s, c, 1.0
+    out[:, :3, :3] = rot @ T[:, :3, :3]
+    out[:, :3, 3] = np.einsum("fij,fj->fi", rot, T[:, :3, 3] - body) + body
+    out[:, :2, 3] += error[:, :2]
     return out
 
 
@@ -143,7 +208,8 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
                    noise_m: float = 0.02, dropout: float = 0.0, pose_noise: tuple[float, float] = (0.0, 0.0),
                    seed: int = 0, drive_id: str = "0001", truth_range_m: float = 50.0,
                    progress: Callable[[Iterable, int], Iterable] | None = None,
-                   scan_observations: bool = False) -> SimulatedDrive:
+                   scan_observations: bool = False,
+                   pose_noise_tau_s: float = DEFAULT_POSE_NOISE_TAU_S) -> SimulatedDrive:
     """Simulate ``world`` and write the drive under ``out_root`` (KITTI raw layout).
 
     The drive is written into a hidden temporary folder and moved into place at the end, so an
@@ -157,6 +223,7 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
         noise_m: standard deviation of the Gaussian range noise (metres).
         dropout: probability that a return is lost.
         pose_noise: (position std in metres, yaw std in degrees) of the error added to the OXTS poses.
+        pose_noise_tau_s: correlation time of that error (seconds; a first-order Gauss-Markov process per axis).
         seed: seeds every random draw; the same seed writes byte-identical files.
         truth_range_m: wall returns closer than this count as observations in the ground truth.
         progress: wraps the frame loop, e.g. ``lambda it, n: rich.progress.track(it, total=n)``.
@@ -166,7 +233,7 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
     partial = final_dir.parent / f".{final_dir.name}.partial"
     try:
         return _simulate_drive(world, out_root, sensor, n_frames, noise_m, dropout, pose_noise, seed, drive_id,
-                               truth_range_m, progress, scan_observations)
+                               truth_range_m, progress, scan_observations, pose_noise_tau_s)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)      # a failed simulation leaves nothing that looks like a drive
         raise
@@ -176,12 +243,15 @@ def _simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_
                     noise_m: float = 0.02, dropout: float = 0.0, pose_noise: tuple[float, float] = (0.0, 0.0),
                     seed: int = 0, drive_id: str = "0001", truth_range_m: float = 50.0,
                     progress: Callable[[Iterable, int], Iterable] | None = None,
-                    scan_observations: bool = False) -> SimulatedDrive:
+                    scan_observations: bool = False,
+                    pose_noise_tau_s: float = DEFAULT_POSE_NOISE_TAU_S) -> SimulatedDrive:
     """The body of :func:`simulate_drive` (which removes its temporary folder when this fails)."""
     if not (0.0 <= dropout < 1.0):
         raise FeatmapError(f"--dropout {dropout}: must be in [0, 1)")
     if noise_m < 0 or pose_noise[0] < 0 or pose_noise[1] < 0:
         raise FeatmapError("--noise and --pose-noise must be non-negative")
+    if not pose_noise_tau_s > 0:
+        raise FeatmapError(f"--pose-noise-tau {pose_noise_tau_s}: must be positive (seconds)")
     rng = np.random.default_rng(seed)
     out_root = Path(out_root)
     calib_dir, final_dir = drive_paths(out_root, SIM_DATE, drive_id)
@@ -228,9 +298,9 @@ def _simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_
     azimuth_step_rad = np.deg2rad(sensor.azimuth_step_deg)
     scan_obs = []
 
-    err_x = gauss_markov(rng, n, pose_noise[0], dt_s)
-    err_y = gauss_markov(rng, n, pose_noise[0], dt_s)
-    err_yaw = gauss_markov(rng, n, np.deg2rad(pose_noise[1]), dt_s)
+    err_x = gauss_markov(rng, n, pose_noise[0], dt_s, pose_noise_tau_s)
+    err_y = gauss_markov(rng, n, pose_noise[0], dt_s, pose_noise_tau_s)
+    err_yaw = gauss_markov(rng, n, np.deg2rad(pose_noise[1]), dt_s, pose_noise_tau_s)
 
     drive_tmp = tmp_dir
     velo_dir = drive_tmp / "velodyne_points" / "data"
@@ -303,6 +373,8 @@ def _simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_
         "frames": n, "truth_range_m": truth_range_m, "speed_mps": speed,
         "geo_origin": geo.to_dict(), "world_offset_xy": [float(p0[0]), float(p0[1])],
     }
+    if pose_noise_tau_s != DEFAULT_POSE_NOISE_TAU_S:     # drives with the default stay byte-identical
+        params["pose_noise_tau_s"] = pose_noise_tau_s
     if SENSORS.get(sensor.name) != sensor:               # a customised preset: say what was simulated
         params["sensor_spec"] = {"n_beams": sensor.n_beams, "elevations_deg": list(sensor.elevations_deg),
                                  "azimuth_step_deg": sensor.azimuth_step_deg, "max_range_m": sensor.max_range_m,

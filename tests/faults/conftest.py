@@ -9,6 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from featmap.cli import app
+from tests.conftest import untimed_metrics
 
 RUNNER = CliRunner()
 QUIET = ["--set", "output.plots=false", "--set", "output.html=false", "--set", "output.kml=false"]
@@ -69,11 +70,5 @@ def contract_files(folder: Path) -> dict[str, bytes]:
         if path.name in ("metrics.json", "comparison.csv", "comparison.md", "map.html"):
             continue
         out[path.name] = path.read_bytes()
-    metrics = json.loads((folder / "metrics.json").read_text())
-    metrics.pop("timings_s")
-    for record in metrics["methods"].values():
-        record.pop("seconds")
-    metrics["scans"].pop("extracted_now")
-    metrics["scans"].pop("from_cache")
-    out["metrics.json (without timings)"] = json.dumps(metrics, sort_keys=True).encode()
+    out["metrics.json (without timings)"] = json.dumps(untimed_metrics(folder), sort_keys=True).encode()
     return out

@@ -77,6 +77,9 @@ def test_coordinates_far_from_the_origin_fuse_like_near_it(tmp_path, segments_cs
     ("fusion.proposed.min_support=true", "'fusion.proposed.min_support' input should be a valid integer (got True)"),
     ("fusion.proposed.gama=0.2", "unknown key 'fusion.proposed.gama' (did you mean 'fusion.proposed.gamma'?)"),
     ("fusion.corners.mode=sharp", "'fusion.corners.mode' must be one of"),
+    ("refinement.method=icp", "'refinement.method' must be one of"),
+    ("refinement.pose_graph.gates_m=[0.5,0]", "every gate must be positive"),
+    ("refinement.pose_graph.motion_sigma_m=-1", "'refinement.pose_graph.motion_sigma_m' input should be greater than or equal to 0"),
     ("novalue", "expected KEY=VALUE"),
 ])
 def test_bad_settings(tmp_path, segments_csv, override, needle):

@@ -56,3 +56,26 @@ def test_distinct_scans_per_feature():
     labels = np.array([0, 0, 0, 1, -1, 1])
     scan = np.array([3, 3, 4, 7, 8, 9])
     assert distinct_scans(labels, scan, 2).tolist() == [2, 2]
+
+
+def test_a_refined_run_writes_its_refined_trajectory_and_the_corrections(tmp_path):
+    from dataclasses import replace
+
+    from featmap.refinement import apply_corrections
+
+    base = _products(GeoFrame(49.0, 8.4))
+    corrections = np.zeros((6, 3))
+    corrections[2] = [0.5, -0.25, np.deg2rad(2.0)]
+    products = replace(base, poses=apply_corrections(base.poses, corrections), source_poses=base.poses,
+                       corrections=corrections)
+    files = write_outputs(products, tmp_path)
+    assert {"trajectory_refined.csv", "pose_corrections.csv", "trajectory_refined.geojson"} <= set(files)
+    assert (tmp_path / "trajectory.csv").read_text().splitlines()[3] == "2,2.0000,0.0000,0.0000,0.000000"
+    assert (tmp_path / "trajectory_refined.csv").read_text().splitlines()[3] == "2,2.5000,-0.2500,0.0000,0.034907"
+    assert (tmp_path / "pose_corrections.csv").read_text().splitlines()[:4] == [
+        "frame,dx_m,dy_m,dyaw_deg", "0,0.0000,0.0000,0.00000", "1,0.0000,0.0000,0.00000", "2,0.5000,-0.2500,2.00000"]
+    import json
+    fc = json.loads((tmp_path / "trajectory_refined.geojson").read_text())
+    assert len(fc["features"]) == 5 and fc["features"][1]["properties"]["dx_m"] == 0.5
+    # without a refinement (corrections None) none of them is written
+    assert not {"trajectory_refined.csv", "pose_corrections.csv"} & set(write_outputs(base, tmp_path / "plain"))

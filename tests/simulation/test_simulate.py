@@ -116,3 +116,50 @@ def test_truth_records_what_the_drive_observed(wall_drive):
     north = [r for r in rows if abs(float(r["y1"]) - WALL_Y - 1) < 1e-6 and abs(float(r["y2"]) - WALL_Y - 1) < 1e-6][0]
     assert int(south["n_returns"]) > 1000 and float(south["observed_m"]) > 20
     assert int(north["n_returns"]) == 0 and float(north["observed_m"]) == 0
+
+
+def test_pose_noise_correlation_time(tmp_path):
+    """The OXTS error is a Gauss-Markov drift with the given correlation time (2 s unless told), drawn first
+    from the seed; only a non-default correlation time is recorded in simulation.json."""
+    import csv
+    import json
+
+    from featmap.simulation.simulate import gauss_markov, gauss_markov_at, oxts_drift
+
+    world = load_world("prescan_case1")
+    default = simulate_drive(world, tmp_path / "a", SENSORS["vlp32"], n_frames=6, pose_noise=(0.3, 0.5), seed=5)
+    same = simulate_drive(world, tmp_path / "b", SENSORS["vlp32"], n_frames=6, pose_noise=(0.3, 0.5), seed=5,
+                          pose_noise_tau_s=2.0)
+    slow = simulate_drive(world, tmp_path / "c", SENSORS["vlp32"], n_frames=6, pose_noise=(0.3, 0.5), seed=5,
+                          pose_noise_tau_s=5.0)
+    assert _digest(default.root) == _digest(same.root)
+    assert "pose_noise_tau_s" not in json.loads((default.drive_dir / "truth" / "simulation.json").read_text())
+    assert json.loads((slow.drive_dir / "truth" / "simulation.json").read_text())["pose_noise_tau_s"] == 5.0
+    rows = list(csv.DictReader(open(slow.drive_dir / "truth" / "trajectory.csv")))
+    err_x = np.array([float(r["oxts_x"]) - float(r["x"]) for r in rows])
+    rng = np.random.default_rng(5)
+    expected = gauss_markov(rng, 6, 0.3, 0.1, 5.0)
+    assert np.allclose(err_x, expected, atol=2e-4)
+    # the same process at any times: equal spacing draws the same values; three axes in the simulator's order
+    times = np.arange(6) * 0.1
+    assert np.allclose(gauss_markov_at(np.random.default_rng(5), times, 0.3, 5.0), expected)
+    drift = oxts_drift(np.random.default_rng(5), times, (0.3, 0.5), 5.0)
+    assert np.allclose(drift[:, 0], expected) and drift.shape == (6, 3)
+    from featmap.errors import FeatmapError
+
+    with pytest.raises(FeatmapError, match="pose-noise-tau"):
+        simulate_drive(world, tmp_path / "d", SENSORS["vlp32"], n_frames=3, pose_noise_tau_s=0.0)
+
+
+def test_perturbed_poses_turn_about_the_body():
+    from featmap.simulation.simulate import perturb_poses
+
+    T = np.eye(4)
+    T[:3, 3] = [10.0, 0.0, 1.7]                            # the sensor
+    T_sensor_body = np.eye(4)
+    T_sensor_body[:3, 3] = [-1.0, 0.0, -0.8]               # the body (IMU) 1 m behind it
+    out = perturb_poses(T[None], np.array([[0.1, 0.2, np.pi / 2]]), T_sensor_body)[0]
+    assert np.allclose(out[:3, 3], [9.0 + 0.1, 1.0 + 0.2, 1.7])   # swung about the body, then moved
+    assert np.allclose(out[:2, :2], [[0, -1], [1, 0]])
+    plain = perturb_poses(T[None], np.array([[0.1, 0.2, np.pi / 2]]))[0]
+    assert np.allclose(plain[:3, 3], [10.1, 0.2, 1.7])

@@ -1,0 +1,72 @@
+"""Joint refinement of every scan's planar pose: segment-to-segment alignment in a sparse least-squares graph.
+
+All corrections are solved at once (:mod:`featmap.refinement.terms` has the terms): Gauss-Newton with
+iteratively re-weighted residuals on the sparse normal equations (``scipy.sparse.linalg.spsolve``).
+Which scans are compared comes from :func:`featmap.refinement.matching.scan_pairs` (every time scale,
+from the next scan to a revisit), recomputed at each gate; matches are found again before every
+iteration, their distance gate shrinking over ``gates_m`` (coarse to fine), so large initial errors
+are pulled in first and only close matches decide the final poses. Scans closer than
+``keyframe_distance_m`` / ``keyframe_angle_deg`` to the previous keyframe are not solved but get
+interpolated corrections. Deterministic: no random draws.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import Field
+
+from featmap.refinement.base import (RefinementInput, RefinementMethod, RefinementResult, apply_corrections,
+                                     correct_segments, interpolate_corrections, keyframes)
+from featmap.refinement.matching import scan_pairs, segment_matches
+from featmap.refinement.terms import AlignmentConfig, keep_if_better, normal_equations, solve_normal_equations
+
+
+class PoseGraphConfig(AlignmentConfig):
+    """Joint segment-to-segment alignment of all scans with GPS/INS or odometry priors (world frame, metres)."""
+
+    pair_radius_m: float = Field(40.0, gt=0, description="scans whose sensors were farther apart are not compared")
+    tolerance_m: float = Field(1e-4, gt=0, description="stop when no scan moves more than this in an iteration at the finest gate")
+
+
+def refine_pose_graph(inp: RefinementInput, config: PoseGraphConfig = PoseGraphConfig()) -> RefinementResult:
+    """Refined poses of every scan of ``inp`` (see the module doc): the keyframes are solved, the scans
+    between them get interpolated corrections; nothing changes unless the scans then agree better."""
+    if inp.n_scans == 0:
+        return RefinementResult(np.zeros((0, 3)), inp.poses.copy(), stats={"applied": False})
+    keys = keyframes(inp.poses, config.keyframe_distance_m, config.keyframe_angle_deg)
+    sub = inp.subset(keys)
+    c, iterations, matches, converged, step = _solve(sub, config)
+    applied, check = keep_if_better(sub, c, scan_pairs(sub.anchors, config.pair_radius_m), config)
+    full = interpolate_corrections(inp.anchors, keys, c) if applied else np.zeros((inp.n_scans, 3))
+    return RefinementResult(corrections=full, poses=apply_corrections(inp.poses, full), iterations=iterations,
+                            matches=matches, converged=converged,
+                            stats={"keyframes": int(len(keys)), **check, "last_step_m": step})
+
+
+def _solve(inp: RefinementInput, config: PoseGraphConfig):
+    F = inp.n_scans
+    c = np.zeros((F, 3))
+    order = np.argsort(inp.scan, kind="stable")
+    seg0, scan = inp.segments[order], inp.scan[order]
+    anchors0 = inp.anchors
+    iterations, matches, converged, step = 0, 0, False, float("inf")
+    for round_, gate in enumerate(config.gates_m):
+        pairs = scan_pairs(anchors0 + c[:, :2], config.pair_radius_m)
+        for _ in range(config.iterations_per_gate):
+            current = correct_segments(seg0, scan, anchors0, c)
+            m = segment_matches(current, scan, pairs, gate, config.angle_deg, config.margin_m, config.min_overlap_m)
+            H, g = normal_equations(inp, c, m, gate, config)
+            dc = solve_normal_equations(H, g)
+            c = c + dc
+            iterations += 1
+            matches = m.n_pairs
+            # how far any point within a quarter of the pair radius moved
+            step = float(np.max(np.hypot(dc[:, 0], dc[:, 1]) + np.abs(dc[:, 2]) * config.pair_radius_m / 4))
+            if round_ == len(config.gates_m) - 1 and step < config.tolerance_m:
+                converged = True
+                break
+    return c, iterations, matches, converged, step
+
+
+METHOD = RefinementMethod(name="pose_graph", title="joint segment alignment (pose graph)", config_type=PoseGraphConfig,
+                          refine=refine_pose_graph)
