@@ -51,7 +51,7 @@ class VerticalStructureConfig(Section):
     """Wall extraction from vertical structure (velodyne frame, metres)."""
 
     min_range_m: float = Field(2.5, ge=0, description="drop returns closer than this (vehicle body)")
-    max_range_m: float = Field(120.0, gt=0, description="drop returns farther than this (the sensor's range; far walls are judged by their sampling)")
+    max_range_m: float = Field(250.0, gt=0, description="drop returns farther than this (the sensor's range; far walls are judged by their sampling)")
     ground_cell_m: float = Field(2.0, gt=0, description="cell of the local ground (lowest return per cell)")
     ground_max_slope: float = Field(0.1, ge=0, description="the ground rises at most this much per metre away from a cell (rise/run)")
     ground_reach_m: float = Field(12.0, ge=0, description="... over at most this distance (fills cells whose ground is hidden)")
@@ -87,6 +87,7 @@ class VerticalStructureConfig(Section):
     long_min_top_m: float = Field(1.8, ge=0, description="... and this high (a garden or boundary wall; taller than cars and fences)")
     envelope_margin_m: float = Field(0.15, ge=0, description="reaching the top beam = a return this close below it ...")
     envelope_margin_deg: float = Field(0.3, ge=0, description="... or within this elevation of it (far away)")
+    level: bool = Field(True, description="measure how the sensor leans from the walls' lean and level the returns before placing lines")
     top_beam_quantile: float = Field(0.999, gt=0, le=1, description="the scan's top beam = this quantile of its returns' elevation angles")
 
 
@@ -197,10 +198,15 @@ class Cells:
         return len(self.count)
 
 
-def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config: VerticalStructureConfig) -> Cells:
+def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config: VerticalStructureConfig,
+                    sensor_xyz: np.ndarray | None = None) -> Cells:
     """Group (M, 3) non-ground points (``height`` (M,) above the local ground) into ``cell_m`` cells and
     keep the cells whose highest point is at least ``cell_min_top_m`` up. The cells' positions and
-    line moments come from their points at least ``line_min_height_m`` up; heights from all."""
+    line moments come from their points at least ``line_min_height_m`` up; heights from all.
+
+    ``xyz`` may be levelled (see ``level_rotation``); ``sensor_xyz`` (M, 3) are then the same points in
+    the sensor's own frame, where the beams' elevations (the top-beam test) are measured."""
+    sensor_xyz = xyz if sensor_xyz is None else sensor_xyz
     ci = np.floor(xyz[:, 0] / config.cell_m).astype(np.int64)
     cj = np.floor(xyz[:, 1] / config.cell_m).astype(np.int64)
     i0, j0, width = int(ci.min()), int(cj.min()), int(cj.max() - cj.min()) + 1
@@ -227,14 +233,15 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
     scatter = np.column_stack([np.bincount(c, dx * dx, n), np.bincount(c, dx * dy, n), np.bincount(c, dy * dy, n)])
     # How close each cell comes to the top beam: the largest z - range * tan(top beam) (<= 0 below it),
     # and whether the sensor sees over it (a higher return farther away in the same direction).
-    rng = np.hypot(x, y)
+    sx, sy, sz = sensor_xyz[upper, 0], sensor_xyz[upper, 1], sensor_xyz[upper, 2]
+    rng = np.hypot(sx, sy)
     reach = np.full(n, -np.inf)
-    np.maximum.at(reach, c, xyz[upper, 2] - rng * tan_top)
+    np.maximum.at(reach, c, sz - rng * tan_top)
     slope = np.full(n, -np.inf)
-    np.maximum.at(slope, c, xyz[upper, 2] / np.maximum(rng, 1e-9))
+    np.maximum.at(slope, c, sz / np.maximum(rng, 1e-9))
     cell_range = np.hypot(centroid[:, 0], centroid[:, 1])
     margin = np.maximum(config.envelope_margin_m, cell_range * np.tan(np.deg2rad(config.envelope_margin_deg)))
-    over_slope, over_range, az_bin = highest_returns(xyz, tan_top, config)
+    over_slope, over_range, az_bin = highest_returns(sensor_xyz, tan_top, config)
     b = az_bin(centroid)
     seen_over = (over_slope[b] > slope + 1e-4) & (over_range[b] > cell_range + SEEN_OVER_M)
     return Cells(point_cell, count, centroid, scatter, top[candidate], bottom, (reach >= -margin) & ~seen_over,
@@ -443,6 +450,125 @@ def merge_collinear(cells: Cells, members: np.ndarray, piece: np.ndarray, config
     graph = coo_matrix((np.ones(int(ok.sum())), (i[ok], j[ok])), shape=(n, n))
     _, merged = connected_components(graph, directed=False)
     return merged[piece]
+
+
+# --- levelling ----------------------------------------------------------------------------------------
+
+LEAN_BAND_M = 2.0
+"""The lean of the walls is measured on returns at most this far above or below the sensor (metres),
+where a tilt of a few degrees shifts a wall by less than a cell."""
+LEAN_POINTS = 30000
+"""About this many returns are enough to measure the lean (denser scans are thinned for it)."""
+LEAN_MAX_RESIDUAL = 0.02
+"""A piece whose lean differs from the common one by more than this (metres per metre) is left out."""
+
+
+def wall_lean(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.ndarray,
+              config: VerticalStructureConfig, min_points: int = 30) -> np.ndarray:
+    """(2,) the horizontal lean ``g`` of the world's vertical in the (N, 3) points' frame (metres of x, y
+    per metre of z), measured from the lean of line pieces (``label`` per cell of ``cells``, -1 = none).
+
+    A wall is vertical in the world; in the frame of a sensor that pitches and rolls with the road its
+    returns drift sideways with height: the offset from the piece's line grows by ``n . g`` per metre
+    (``n`` its normal). Every piece with >= ``min_points`` returns (``line_min_height_m`` up) spread over at least
+    0.5 m of height (standard deviation), 2 m long and straight once its lean is taken out (rms
+    <= 5 cm) gives one such equation; ``g`` is their least-squares solution weighted by each piece's
+    height spread, refitted twice without the pieces that disagree by more than ``LEAN_MAX_RESIDUAL``
+    (clutter), and damped where the pieces do not constrain it (walls of one direction only: the
+    lean along them moves nothing). At most ``MAX_TILT_DEG``. Zero when no piece qualifies.
+    """
+    point_piece = np.where(cells.point_cell >= 0, label[np.maximum(cells.point_cell, 0)], -1)
+    member = np.flatnonzero((point_piece >= 0) & (height >= config.line_min_height_m))
+    if len(member) == 0:
+        return np.zeros(2)
+    _, piece = np.unique(point_piece[member], return_inverse=True)
+    n = int(piece.max()) + 1
+    pts = xyz[member]
+    count = np.bincount(piece, minlength=n).astype(float)
+    safe = np.maximum(count, 1)
+    mean = np.column_stack([np.bincount(piece, pts[:, i], n) for i in range(3)]) / safe[:, None]
+    d = pts - mean[piece]
+    theta = 0.5 * np.arctan2(2 * np.bincount(piece, d[:, 0] * d[:, 1], n), np.bincount(piece, d[:, 0] ** 2 - d[:, 1] ** 2, n))
+    normal = np.column_stack([-np.sin(theta), np.cos(theta)])
+    offset = d[:, 0] * normal[piece, 0] + d[:, 1] * normal[piece, 1]
+    along = d[:, 0] * -normal[piece, 1] + d[:, 1] * normal[piece, 0]
+    szz = np.bincount(piece, d[:, 2] ** 2, n)
+    slope = np.bincount(piece, offset * d[:, 2], n) / np.maximum(szz, 1e-9)
+    rest = np.bincount(piece, (offset - slope[piece] * d[:, 2]) ** 2, n) / safe
+    t_min = np.full(n, np.inf)
+    t_max = np.full(n, -np.inf)
+    np.minimum.at(t_min, piece, along)
+    np.maximum.at(t_max, piece, along)
+    ok = (count >= min_points) & (szz / safe >= 0.25) & (t_max - t_min >= 2.0) & (rest <= 0.05 ** 2)
+    if not ok.any():
+        return np.zeros(2)
+    nrm, s, w = normal[ok], slope[ok], szz[ok]
+    g = np.zeros(2)
+    for _ in range(3):
+        A = (nrm * w[:, None]).T @ nrm
+        A += np.eye(2) * (1e-3 * np.trace(A) + 1e-9)
+        g = np.linalg.solve(A, (nrm * (w * s)[:, None]).sum(0))
+        agree = np.abs(s - nrm @ g) <= LEAN_MAX_RESIDUAL
+        if not agree.any():
+            return np.zeros(2)
+        w = np.where(agree, w, 0.0)
+    limit = np.tan(np.deg2rad(MAX_TILT_DEG))
+    norm = float(np.hypot(*g))
+    return g * min(1.0, limit / norm) if norm > 0 else g
+
+
+def scan_lean(xyz: np.ndarray, height: np.ndarray, tan_top: float, step: float | None,
+              config: VerticalStructureConfig) -> np.ndarray:
+    """(2,) the lean of the world's vertical in the frame of (N, 3) non-ground returns (``height`` (N,)
+    above the local ground; ``step`` the scan's azimuth step in degrees, or None): ``wall_lean`` of
+    the line pieces found among the returns within ``LEAN_BAND_M`` of the sensor's height. Dense scans
+    are thinned to about ``LEAN_POINTS`` returns by keeping every k-th azimuth step (the links reach
+    k times as far), which leaves the walls' lean measurable at a fraction of the cost."""
+    band = np.flatnonzero(np.abs(xyz[:, 2]) <= LEAN_BAND_M)
+    k = int(np.ceil(len(band) / LEAN_POINTS))
+    if k > 1 and step is not None:
+        az_bin = np.floor((np.arctan2(xyz[band, 1], xyz[band, 0]) + np.pi) / np.deg2rad(step)).astype(np.int64)
+        band = band[az_bin % k == 0]
+        config = config.model_copy(update={"link_azimuth_deg": config.link_azimuth_deg * k})
+    if len(band) < config.min_points:
+        return np.zeros(2)
+    cells = structure_cells(xyz[band], height[band], tan_top, config)
+    label = cell_pieces(cells, link_cells(cells.centroid, cells.count, config), config)
+    return wall_lean(xyz[band], height[band], cells, label, config, min_points=max(10, 30 // k))
+
+
+def level_rotation(g: np.ndarray) -> np.ndarray:
+    """(3, 3) the smallest rotation that turns the leaning vertical (g_x, g_y, 1) into the z axis."""
+    up = np.array([g[0], g[1], 1.0]) / np.sqrt(1.0 + g[0] ** 2 + g[1] ** 2)
+    axis = np.array([up[1], -up[0], 0.0])              # up x e_z
+    s, c = float(np.hypot(*axis[:2])), float(up[2])
+    if s < 1e-12:
+        return np.eye(3)
+    k = axis / s
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + s * K + (1 - c) * K @ K
+
+
+def unlevel_segments(result: ScanSegments, R: np.ndarray) -> ScanSegments:
+    """Segments found in the levelled frame ``R @ sensor`` (``R`` (3, 3)) back in the sensor frame.
+
+    Each wall is a vertical plane of the levelled frame; its line is given where that plane cuts the
+    sensor's horizontal plane at the height of the segment's middle, so ``segments_to_world`` (which
+    lifts both ends to ``z_mean``) puts it back on the wall exactly.
+    """
+    support = result.support_points
+    if support is not None:
+        support = (np.column_stack([support, np.zeros(len(support))]) @ R)[:, :2]
+    if len(result) == 0:
+        return replace(result, support_points=support)
+    seg = result.segments
+    up = R.T[:, 2]                                      # the levelled z axis in the sensor frame
+    ends = [np.column_stack([seg[:, 2 * k], seg[:, 2 * k + 1], result.z_mean]) @ R for k in (0, 1)]
+    z = 0.5 * (ends[0][:, 2] + ends[1][:, 2])
+    moved = [e + ((z - e[:, 2]) / up[2])[:, None] * up for e in ends]
+    shift = z - result.z_mean
+    return replace(result, segments=np.column_stack([moved[0][:, :2], moved[1][:, :2]]), z_mean=z,
+                   z_min=result.z_min + shift, z_max=result.z_max + shift, support_points=support)
 
 
 # --- stage 6: walls -------------------------------------------------------------------------------------
@@ -735,7 +861,14 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
     xyz, height = xyz[above], height[above]
     if len(xyz) < config.min_points:
         return ScanSegments.empty()
-    cells = structure_cells(xyz, height, tan_top, config)
+    sensor_xyz, R = xyz, None
+    if config.level:
+        g = scan_lean(xyz, height, tan_top, step, config)
+        if np.hypot(*g) > 1e-4:
+            R = level_rotation(g)
+            xyz = sensor_xyz @ R.T
+        clock.lap("level")
+    cells = structure_cells(xyz, height, tan_top, config, sensor_xyz)
     clock.lap("cells")
     group = link_cells(cells.centroid, cells.count, config)
     clock.lap("lines")
@@ -743,8 +876,11 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
     clock.lap("pieces")
     label = tall_pieces(cells, label, config)
     result = wall_segments(piece_measures(xyz, height, cells, label, config), config)
+    result = replace(result, support_points=cells.centroid)
+    if R is not None:
+        result = unlevel_segments(result, R)
     clock.lap("walls")
-    return replace(result, support_points=cells.centroid)
+    return result
 
 
 EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,

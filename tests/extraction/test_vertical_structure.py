@@ -164,4 +164,4 @@ def test_config_model_behaves_like_every_config_section():
 def test_timings_per_stage():
     timings: dict[str, float] = {}
     extract_vertical_structure(cast_scan([building(20, -10, 35, 10)]), timings=timings)
-    assert set(timings) == {"crop", "ground", "cells", "lines", "pieces", "walls"}
+    assert set(timings) == {"crop", "ground", "level", "cells", "lines", "pieces", "walls"}
