@@ -64,6 +64,8 @@ class VerticalStructureConfig(Section):
     link_azimuth_steps: float = Field(3.33, ge=0, description="... and so are cells seen within this many of the scan's azimuth steps (measured from its returns) ...")
     link_azimuth_deg: float = Field(0.6, gt=0, description="... (or within this azimuth when the step cannot be measured; 0 steps = always) ...")
     link_radial_m: float = Field(2.0, gt=0, description="... that are this close in range (far walls, walls seen at grazing incidence)")
+    link_grazing_deg: float = Field(85.0, ge=0, lt=90, description="... and so are cells one azimuth step apart whose ranges differ as those of a wall seen up to this far from head-on (sparse samples of far walls along the street; 0 = off)")
+    link_column_m: float = Field(1.0, ge=0, description="... when both are columns of returns this high (a wall's; a tree crown's returns at several depths are not)")
     link_angle_deg: float = Field(10.0, gt=0, le=90, description="linked cells' line directions differ by at most this")
     line_tolerance_m: float = Field(0.08, gt=0, description="a linked cell lies this close to its neighbour's line")
     min_support: int = Field(2, ge=1, description="a cell has a line through it when this many neighbours lie on it")
@@ -77,17 +79,27 @@ class VerticalStructureConfig(Section):
     max_rms_m: float = Field(0.08, gt=0, description="a wall's returns spread at most this much about its line (rms) ...")
     core_m: float = Field(0.05, gt=0, description="... and at least min_core_fraction of them lie this close to the median of their 0.5 m column ...")
     min_core_fraction: float = Field(0.65, ge=0, le=1, description="... (foliage scatters its returns evenly; a facade's recesses shift whole columns), and ...")
+    max_incidence_deg: float = Field(88.0, ge=0, le=90, description="a wall is seen at most this far from head-on (returns along a ray are a round thing seen at several depths, not a surface seen edge-on)")
     max_behind: float = Field(1.0, ge=0, description="... at most this many returns per wall return lie up to 1 m behind it (a wall hides what is behind it; foliage does not)")
     min_span_m: float = Field(0.8, ge=0, description="a wall's returns span at least this much in height ...")
     max_bottom_m: float = Field(2.0, ge=0, description="... and reach down to this height above the ground (plus one of the scan's beam spacings at its range) or lower: a tree crown floats, a wall's base is hidden at most by a car or a fence")
     elevation_step_deg: float = Field(0.5, ge=0, description="the sensor's beam spacing near the horizon, when it cannot be measured from the scan")
+    solid_length_m: float = Field(3.0, ge=0, description="a piece this long is no tree crown (or other round thing): it may float (seen over something in front), ...")
+    solid_min_span_m: float = Field(0.3, ge=0, description="... span this much in height and reach cell_min_top_m when it stops the top beam (seen over a hedge, or under the beam up a slope) ...")
+    solid_min_points: int = Field(20, ge=2, description="... and have this many returns (a sparse far wall); a shorter piece ...")
+    short_max_bottom_m: float = Field(1.0, ge=0, description="... reaches down to this height (plus a beam spacing) ...")
+    solid_rms_factor: float = Field(3.0, gt=0, description="... spreads at most this many times as much as the scan's long walls (median; when it has 3); a shorter piece ...")
+    short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls (median; when it has 3) ...")
+    short_min_core_fraction: float = Field(0.65, ge=0, le=1, description="... and is this thin (see min_core_fraction)")
     min_top_m: float = Field(1.5, ge=0, description="a wall reaches at least this high above the local ground, and ...")
     tall_m: float = Field(2.3, ge=0, description="... is hit by the scan's top beam, or is this high (taller than vans, fences, hedges), ...")
     long_m: float = Field(6.0, ge=0, description="... or is at least this long (longer than a vehicle) ...")
     long_min_top_m: float = Field(1.8, ge=0, description="... and this high (a garden or boundary wall; taller than cars and fences)")
+    reach_min_m: float = Field(2.0, ge=0, description="reaching the top beam counts only where it passes this high above the ground under the sensor (higher than cars)")
     envelope_margin_m: float = Field(0.15, ge=0, description="reaching the top beam = a return this close below it ...")
     envelope_margin_deg: float = Field(0.3, ge=0, description="... or within this elevation of it (far away)")
     level: bool = Field(True, description="measure how the sensor leans from the walls' lean and level the returns before placing lines")
+    max_lean_deg: float = Field(3.0, ge=0, le=15, description="... after which a wall leans at most this much (a tree crown's facets lean more)")
     top_beam_quantile: float = Field(0.999, gt=0, le=1, description="the scan's top beam = this quantile of its returns' elevation angles")
 
 
@@ -99,6 +111,8 @@ BEHIND_M = 1.0
 """How far behind a wall's line returns count as seen through it (metres) ..."""
 BEHIND_MAX_HEIGHT_M = 1.8
 """... if they are at most this high above the ground (a tree crown behind a low wall does not count)."""
+TOP_BEAM_DEG = 0.1
+"""Returns within this elevation of the top beam are the top beam's (degrees)."""
 SEEN_OVER_M = 0.5
 """A return this much farther away than a structure, and higher, was seen over it (metres)."""
 
@@ -169,6 +183,7 @@ class Cells:
         top, bottom: (C,) highest and lowest point above the local ground.
         reaches_top: (C,) a point of the cell is hit by (within the envelope margins of) the top beam,
             and the sensor does not see over the cell.
+        hidden_above: (C,) the top beam stopped nearer in the cell's direction: its top is not seen.
         grid_keys, grid_counts, grid_origin: every cell (sorted keys) with non-ground points at most
             ``BEHIND_MAX_HEIGHT_M`` high, and how many, to count such points anywhere (``points_at``).
     """
@@ -180,6 +195,7 @@ class Cells:
     top: np.ndarray
     bottom: np.ndarray
     reaches_top: np.ndarray
+    hidden_above: np.ndarray
     grid_keys: np.ndarray
     grid_counts: np.ndarray
     grid_origin: tuple
@@ -199,13 +215,14 @@ class Cells:
 
 
 def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config: VerticalStructureConfig,
-                    sensor_xyz: np.ndarray | None = None) -> Cells:
+                    sensor_xyz: np.ndarray | None = None, reach_from_m: float = 0.0) -> Cells:
     """Group (M, 3) non-ground points (``height`` (M,) above the local ground) into ``cell_m`` cells and
     keep the cells whose highest point is at least ``cell_min_top_m`` up. The cells' positions and
     line moments come from their points at least ``line_min_height_m`` up; heights from all.
 
     ``xyz`` may be levelled (see ``level_rotation``); ``sensor_xyz`` (M, 3) are then the same points in
-    the sensor's own frame, where the beams' elevations (the top-beam test) are measured."""
+    the sensor's own frame, where the beams' elevations (the top-beam test) are measured. Cells
+    closer than ``reach_from_m`` never count as reaching the top beam."""
     sensor_xyz = xyz if sensor_xyz is None else sensor_xyz
     ci = np.floor(xyz[:, 0] / config.cell_m).astype(np.int64)
     cj = np.floor(xyz[:, 1] / config.cell_m).astype(np.int64)
@@ -241,19 +258,23 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
     np.maximum.at(slope, c, sz / np.maximum(rng, 1e-9))
     cell_range = np.hypot(centroid[:, 0], centroid[:, 1])
     margin = np.maximum(config.envelope_margin_m, cell_range * np.tan(np.deg2rad(config.envelope_margin_deg)))
-    over_slope, over_range, az_bin = highest_returns(sensor_xyz, tan_top, config)
+    over_slope, over_range, top_range, az_bin = highest_returns(sensor_xyz, tan_top, config)
     b = az_bin(centroid)
     seen_over = (over_slope[b] > slope + 1e-4) & (over_range[b] > cell_range + SEEN_OVER_M)
-    return Cells(point_cell, count, centroid, scatter, top[candidate], bottom, (reach >= -margin) & ~seen_over,
+    reaches = (reach >= -margin) & ~seen_over & (cell_range >= reach_from_m)
+    hidden = ~reaches & (top_range[b] < cell_range - SEEN_OVER_M)
+    return Cells(point_cell, count, centroid, scatter, top[candidate], bottom, reaches, hidden,
                  grid_keys, grid_counts, (config.cell_m, i0, j0, width))
 
 
 def highest_returns(xyz: np.ndarray, tan_top: float, config: VerticalStructureConfig):
     """The highest return in each ``link_azimuth_deg / 2`` azimuth bin, among returns near the top beam.
 
-    Returns (slope (B,) largest z / range per bin (-inf: none), range (B,) of that return, a function
-    mapping (K, 2) x, y to their bin numbers (K,)). A structure whose bin holds a higher return farther
-    away does not stop the top beams: the sensor sees over it (a van, a hedge, a garden wall).
+    Returns (slope (B,) largest z / range per bin (-inf: none), range (B,) of that return, range (B,)
+    of the nearest return of the top beam (within ``TOP_BEAM_DEG``; inf: none), a function mapping
+    (K, 2) x, y to their bin numbers (K,)). A structure whose bin holds a higher return farther away
+    does not stop the top beams: the sensor sees over it (a van, a hedge, a garden wall); one whose
+    top beam stopped nearer is hidden above (its top is not seen).
     """
     width = np.deg2rad(config.link_azimuth_deg) / 2
     n_bins = int(np.ceil(2 * np.pi / width))
@@ -270,23 +291,32 @@ def highest_returns(xyz: np.ndarray, tan_top: float, config: VerticalStructureCo
     at_best = slope[high] >= best[bins]
     best_range = np.zeros(n_bins)
     best_range[bins[at_best]] = rng[high][at_best]
-    return best, best_range, az_bin
+    top = slope[high] >= tan_top - np.deg2rad(TOP_BEAM_DEG) * (1 + tan_top ** 2)
+    top_range = np.full(n_bins, np.inf)
+    np.minimum.at(top_range, bins[top], rng[high][top])
+    return best, best_range, top_range, az_bin
 
 
 # --- stage 4: lines of cells ----------------------------------------------------------------------------
 
-def neighbour_pairs(centroids: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+def neighbour_pairs(centroids: np.ndarray, config: VerticalStructureConfig,
+                    columns: np.ndarray | None = None) -> np.ndarray:
     """(P, 2) index pairs i < j of neighbouring cells (C, 2): closer than ``link_radius_m``, or seen
     within ``link_azimuth_deg`` of each other from the sensor and less than ``link_radial_m`` apart in
     range. The second kind links the samples of far walls and of walls seen at grazing incidence,
-    which lie a few azimuth steps apart but can be metres apart on the ground.
+    which lie a few azimuth steps apart but can be metres apart on the ground. Two ``columns``
+    ((C,) bool: cells whose returns stand at least ``link_column_m`` high) one azimuth step apart are
+    also neighbours when their ranges differ as on a wall seen up to ``link_grazing_deg`` from
+    head-on (a far wall along the street: one column of returns per azimuth step, metres apart).
     """
-    return _close_pairs(centroids, config.link_radius_m, config)
+    return _close_pairs(centroids, config.link_radius_m, config, columns)
 
 
-def _close_pairs(points: np.ndarray, radius: float, config: VerticalStructureConfig) -> np.ndarray:
+def _close_pairs(points: np.ndarray, radius: float, config: VerticalStructureConfig,
+                 columns: np.ndarray | None = None) -> np.ndarray:
     """(P, 2) index pairs i < j of (K, 2) points closer than ``radius`` or close as seen from the sensor
-    (within ``link_azimuth_deg`` in azimuth and ``link_radial_m`` in range)."""
+    (within ``link_azimuth_deg`` in azimuth and ``link_radial_m`` in range; with ``columns`` (K,)
+    bool, also columns one azimuth step apart, see ``neighbour_pairs``)."""
     from scipy.spatial import cKDTree
 
     near = cKDTree(points).query_pairs(radius, output_type="ndarray")
@@ -294,11 +324,27 @@ def _close_pairs(points: np.ndarray, radius: float, config: VerticalStructureCon
     rng = np.hypot(points[:, 0], points[:, 1])
     unit = points / np.maximum(rng, 1e-9)[:, None] / np.deg2rad(config.link_azimuth_deg)
     angular = cKDTree(np.column_stack([unit, rng / config.link_radial_m])).query_pairs(1.0, output_type="ndarray")
-    apart = np.hypot(*(points[angular[:, 0]] - points[angular[:, 1]]).T) > radius
-    return np.concatenate([near, angular[apart]]).astype(np.int64).reshape(-1, 2)
+    parts = [near, angular[np.hypot(*(points[angular[:, 0]] - points[angular[:, 1]]).T) > radius]]
+    if columns is not None and columns.sum() >= 2 and config.link_grazing_deg > 0 and config.link_azimuth_steps > 0:
+        # Neighbouring azimuth steps on a wall seen up to link_grazing_deg from head-on: their ranges
+        # differ by up to r * step * tan(grazing) (a relative change: log range).
+        step = np.deg2rad(config.link_azimuth_deg / config.link_azimuth_steps)
+        tan = np.tan(np.deg2rad(config.link_grazing_deg))
+        unit_step = unit * (np.deg2rad(config.link_azimuth_deg) / (1.5 * step))
+        col = np.flatnonzero(columns)
+        graze = cKDTree(np.column_stack([unit_step[col], np.log(np.maximum(rng[col], 1e-3)) / (1.5 * step * tan)]
+                                        )).query_pairs(np.sqrt(2.0), output_type="ndarray")
+        graze = col[graze.reshape(-1, 2)]
+        i, j = graze[:, 0], graze[:, 1]
+        dphi = _azimuth_gap(points[i], points[j])
+        dr = np.abs(rng[i] - rng[j])
+        keep = (dphi <= 1.5 * step) & (dr > config.link_radial_m) & (dr <= np.minimum(rng[i], rng[j]) * dphi * tan)
+        parts.append(graze[keep])
+    return np.concatenate(parts).astype(np.int64).reshape(-1, 2)
 
 
-def link_cells(centroids: np.ndarray, weights: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+def link_cells(centroids: np.ndarray, weights: np.ndarray, config: VerticalStructureConfig,
+               columns: np.ndarray | None = None) -> np.ndarray:
     """(C,) line-piece label of each candidate cell (-1: no line through it).
 
     Each cell's direction is the dominant direction towards its neighbours (a weighted vote over
@@ -309,7 +355,7 @@ def link_cells(centroids: np.ndarray, weights: np.ndarray, config: VerticalStruc
     from scipy.sparse.csgraph import connected_components
 
     n = len(centroids)
-    pairs = neighbour_pairs(centroids, config)
+    pairs = neighbour_pairs(centroids, config, columns)
     if n < 2 or len(pairs) == 0:
         return np.full(n, -1)
     p, q = pairs[:, 0], pairs[:, 1]
@@ -324,9 +370,13 @@ def link_cells(centroids: np.ndarray, weights: np.ndarray, config: VerticalStruc
     normal = np.column_stack([-np.sin(theta), np.cos(theta)])
     # Refine each direction by a weighted principal axis of the neighbours on its dominant line
     # (moments about the cell itself; a pair seen from its other end has the opposite offset).
+    # (The voted direction is a bin's centre: a far neighbour, linked as seen from the sensor, may
+    # lie |d| sin(bin) off its line.)
     tol = config.line_tolerance_m
-    at_p = np.abs(d[:, 0] * normal[p, 0] + d[:, 1] * normal[p, 1]) <= tol
-    at_q = np.abs(d[:, 0] * normal[q, 0] + d[:, 1] * normal[q, 1]) <= tol
+    dist = np.hypot(d[:, 0], d[:, 1])
+    reach = tol + np.where(dist > config.link_radius_m, dist * np.sin(np.pi / bins), 0.0)
+    at_p = np.abs(d[:, 0] * normal[p, 0] + d[:, 1] * normal[p, 1]) <= reach
+    at_q = np.abs(d[:, 0] * normal[q, 0] + d[:, 1] * normal[q, 1]) <= reach
     owner = np.concatenate([p[at_p], q[at_q]])
     w = np.concatenate([weights[q[at_p]], weights[p[at_q]]])
     dd = np.concatenate([d[at_p], -d[at_q]])
@@ -623,6 +673,18 @@ def top_beam_tangent(xyz: np.ndarray, config: VerticalStructureConfig) -> float:
     return float(np.quantile(xyz[far, 2] / rng[far], config.top_beam_quantile))
 
 
+def top_beam_reach_from(xyz: np.ndarray, height: np.ndarray, tan_top: float, config: VerticalStructureConfig) -> float:
+    """Range (metres) from which the scan's top beam passes ``reach_min_m`` above the ground under the
+    sensor (the median of z - height of the (N, 3) returns within 10 m), so that reaching it says a
+    structure is taller than a car; 0 when the ground near the sensor is not seen or the top beam
+    points down."""
+    near = np.hypot(xyz[:, 0], xyz[:, 1]) <= 10.0
+    if near.sum() < 10 or not np.isfinite(tan_top) or tan_top <= 0:
+        return 0.0
+    sensor_height = -float(np.median(xyz[near, 2] - height[near]))
+    return max(0.0, (config.reach_min_m - sensor_height) / tan_top)
+
+
 def _group_median(group: np.ndarray, value: np.ndarray, n: int) -> np.ndarray:
     """(n,) median (the upper one of an even count) of ``value`` per ``group`` label; nan for empty groups."""
     order = np.lexsort((value, group))
@@ -660,8 +722,16 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     np.maximum.at(col_top, col, cells.top[members])
     reaching = np.zeros(n_col, bool)
     np.logical_or.at(reaching, col, cells.reaches_top[members])
-    top = _group_median(col_piece, col_top, n)
-    reaches_top = np.bincount(col_piece, reaching, n) >= 0.5 * np.bincount(col_piece, minlength=n)
+    hidden = np.ones(n_col, bool)
+    np.logical_and.at(hidden, col, cells.hidden_above[members])
+    # The piece's top: the median of its columns' tops, over the columns whose top is seen (a tree
+    # crown over a fence does not lift it; one in front of a wall does not lower it).
+    seen_col = ~hidden | reaching
+    top = _group_median(col_piece[seen_col], col_top[seen_col], n)
+    top = np.where(np.isnan(top), _group_median(col_piece, col_top, n), top)
+    # Columns whose top beam stopped in front of them (a tree crown, a van) do not count.
+    seen = np.bincount(col_piece, seen_col, n)
+    reaches_top = (seen > 0) & (np.bincount(col_piece, reaching, n) >= 0.5 * seen)
     bottom = np.full(n, np.inf)
     np.minimum.at(bottom, piece, cells.bottom[members])
     # How far each cell's lowest return may float: max_bottom_m plus one beam spacing at its range
@@ -670,8 +740,15 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     floats = np.full(n, np.inf)
     np.minimum.at(floats, piece, cells.bottom[members] - spacing)
     length = np.hypot(*(b - a).T)
-    ok = (count >= config.min_points) & (length >= config.min_length_m) & (np.sqrt(msd) <= config.max_rms_m)
-    ok &= (top - bottom >= config.min_span_m) & (top >= config.min_top_m) & (floats <= config.max_bottom_m)
+    solid = length >= config.solid_length_m
+    ok = (count >= np.where(solid, config.solid_min_points, config.min_points)) & (length >= config.min_length_m)
+    ok &= np.sqrt(msd) <= config.max_rms_m
+    # A long piece that stops the top beam may be seen over a narrow band (a hedge in front, an
+    # uphill street under the beam): it is higher than the beam there, which is above cars.
+    seen_to_top = solid & reaches_top
+    ok &= top - bottom >= np.where(seen_to_top, config.solid_min_span_m, config.min_span_m)
+    ok &= top >= np.where(seen_to_top, config.cell_min_top_m, config.min_top_m)
+    ok &= floats <= np.where(solid, np.inf, config.short_max_bottom_m)
     ok &= reaches_top | (top >= config.tall_m) | ((length >= config.long_m) & (top >= config.long_min_top_m))
     out[members] = np.where(ok[piece], piece, -1)
     return out
@@ -708,7 +785,7 @@ class PieceMeasures:
 
 
 def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.ndarray,
-                   config: VerticalStructureConfig) -> PieceMeasures | None:
+                   config: VerticalStructureConfig, max_lean_deg: float = None) -> PieceMeasures | None:
     """Measures of the pieces (``label`` per cell, -1 = none) from the (M, 3) non-ground points ``xyz``
     (``height`` (M,) above the ground) that ``cells`` was made of. Only points at least
     ``line_min_height_m`` up and within ``inlier_tolerance_m`` of the piece's line (refitted once
@@ -729,7 +806,8 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
         dx, dy = pts[:, 0] - mean[piece, 0], pts[:, 1] - mean[piece, 1]
         theta = 0.5 * np.arctan2(2 * np.bincount(piece, dx * dy, n), np.bincount(piece, dx * dx - dy * dy, n))
         u = np.column_stack([np.cos(theta), np.sin(theta)])
-        offset = _untilted(dx * u[piece, 1] - dy * u[piece, 0], pts[:, 2], piece, n)
+        offset = _untilted(dx * u[piece, 1] - dy * u[piece, 0], pts[:, 2], piece, n,
+                           MAX_TILT_DEG if max_lean_deg is None else max_lean_deg)
         keep = np.abs(offset) <= config.inlier_tolerance_m
         member, piece = member[keep], piece[keep]
         if len(member) == 0:
@@ -771,7 +849,7 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
                          behind=_points_behind(cells, a, b, config) / safe)
 
 
-def _untilted(offset: np.ndarray, z: np.ndarray, piece: np.ndarray, n: int) -> np.ndarray:
+def _untilted(offset: np.ndarray, z: np.ndarray, piece: np.ndarray, n: int, max_deg: float = MAX_TILT_DEG) -> np.ndarray:
     """Offsets (K,) from a piece's line minus their linear trend with height (at most ``MAX_TILT_DEG``).
 
     A wall is vertical in the world, not in the sensor's frame when the vehicle pitches or rolls:
@@ -781,7 +859,7 @@ def _untilted(offset: np.ndarray, z: np.ndarray, piece: np.ndarray, n: int) -> n
     count = np.maximum(np.bincount(piece, minlength=n), 1)
     dz = z - (np.bincount(piece, z, n) / count)[piece]
     slope = np.bincount(piece, offset * dz, n) / np.maximum(np.bincount(piece, dz * dz, n), 1e-9)
-    limit = np.tan(np.deg2rad(MAX_TILT_DEG))
+    limit = np.tan(np.deg2rad(max_deg))
     return offset - np.clip(slope, -limit, limit)[piece] * dz
 
 
@@ -809,12 +887,23 @@ def _points_behind(cells: Cells, a: np.ndarray, b: np.ndarray, config: VerticalS
 
 
 def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfig) -> ScanSegments:
-    """The pieces that pass the final tests (returns, length, spread, thinness, opacity) as segments."""
+    """The pieces that pass the final tests (returns, length, spread, thinness, opacity, not seen
+    edge-on) as segments."""
     if measures is None:
         return ScanSegments.empty()
     m = measures
-    wall = (m.count >= config.min_points) & (m.length >= config.min_length_m) & (m.rms <= config.max_rms_m)
-    wall &= (m.core >= config.min_core_fraction) & (m.behind <= config.max_behind)
+    solid = m.length >= config.solid_length_m
+    wall = (m.count >= np.where(solid, config.solid_min_points, config.min_points)) & (m.length >= config.min_length_m)
+    wall &= m.rms <= config.max_rms_m
+    wall &= m.core >= np.where(solid, config.min_core_fraction, config.short_min_core_fraction)
+    wall &= m.behind <= config.max_behind
+    mid = (m.a + m.b) / 2
+    along_ray = np.abs(((m.b - m.a) * mid).sum(1)) / np.maximum(m.length * np.hypot(mid[:, 0], mid[:, 1]), 1e-9)
+    wall &= along_ray <= np.sin(np.deg2rad(config.max_incidence_deg))
+    # A piece must be about as thin as this scan's long walls are (their spread is the sensor's noise).
+    if (wall & solid).sum() >= 3:
+        typical = float(np.median(m.rms[wall & solid]))
+        wall &= m.rms <= np.where(solid, config.solid_rms_factor, config.short_rms_factor) * typical
     sel = np.flatnonzero(wall)
     if len(sel) == 0:
         return ScanSegments.empty()
@@ -849,6 +938,7 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
         return ScanSegments.empty()
     height = heights_above_local_ground(xyz, config)
     tan_top = top_beam_tangent(xyz, config)
+    reach_from = top_beam_reach_from(xyz, height, tan_top, config)
     step = azimuth_step_deg(xyz) if config.link_azimuth_steps > 0 else None
     if step is not None:                       # later stages see the scan's own sampling
         update = {"link_azimuth_deg": config.link_azimuth_steps * step}
@@ -868,14 +958,15 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
             R = level_rotation(g)
             xyz = sensor_xyz @ R.T
         clock.lap("level")
-    cells = structure_cells(xyz, height, tan_top, config, sensor_xyz)
+    cells = structure_cells(xyz, height, tan_top, config, sensor_xyz, reach_from)
     clock.lap("cells")
-    group = link_cells(cells.centroid, cells.count, config)
+    group = link_cells(cells.centroid, cells.count, config, cells.top - cells.bottom >= config.link_column_m)
     clock.lap("lines")
     label = cell_pieces(cells, group, config)
     clock.lap("pieces")
     label = tall_pieces(cells, label, config)
-    result = wall_segments(piece_measures(xyz, height, cells, label, config), config)
+    lean = config.max_lean_deg if R is not None else None
+    result = wall_segments(piece_measures(xyz, height, cells, label, config, lean), config)
     result = replace(result, support_points=cells.centroid)
     if R is not None:
         result = unlevel_segments(result, R)

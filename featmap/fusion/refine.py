@@ -39,7 +39,7 @@ from featmap.geometry import segment_lengths
 class RefineConfig(Section):
     """Shared clean-up after every method, before corners: split and merge clusters so that each feature is one straight wall, cut features at unobserved gaps (featmap.fusion.refine)."""
 
-    max_offset_m: float = Field(0.0, ge=0, description="split clusters whose member endpoints lie farther than this from their line; merge clusters that one line explains within it (0 = off)")
+    max_offset_m: float = Field(0.1, ge=0, description="split clusters whose member endpoints lie farther than this from their line; merge clusters that one line explains within it (0 = off)")
     merge_angle_deg: float = Field(5.0, ge=0, le=90, description="merge only features within this angle of parallel")
     merge_gap_m: float = Field(0.5, ge=0, description="merge only features that overlap or leave at most this gap along their line")
     absorb_dropped: bool = Field(True, description="segments dropped by a support filter join a feature they lie on")
