@@ -956,7 +956,8 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
         g = scan_lean(xyz, height, tan_top, step, config)
         if np.hypot(*g) > 1e-4:
             R = level_rotation(g)
-            xyz = sensor_xyz @ R.T
+            # (Sums of products, not a matrix product: BLAS threads would spin on a busy machine.)
+            xyz = sensor_xyz[:, :1] * R[:, 0] + sensor_xyz[:, 1:2] * R[:, 1] + sensor_xyz[:, 2:] * R[:, 2]
         clock.lap("level")
     cells = structure_cells(xyz, height, tan_top, config, sensor_xyz, reach_from)
     clock.lap("cells")
@@ -975,4 +976,4 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
 
 
 EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,
-                      extract=extract_vertical_structure, version=1)
+                      extract=extract_vertical_structure, version=2)
