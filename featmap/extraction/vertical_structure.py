@@ -215,21 +215,25 @@ class Cells:
 
 
 def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config: VerticalStructureConfig,
-                    sensor_xyz: np.ndarray | None = None, reach_from_m: float = 0.0) -> Cells:
+                    sensor_xyz: np.ndarray | None = None, reach_from_m: float = 0.0, lines_only: bool = False) -> Cells:
     """Group (M, 3) non-ground points (``height`` (M,) above the local ground) into ``cell_m`` cells and
     keep the cells whose highest point is at least ``cell_min_top_m`` up. The cells' positions and
     line moments come from their points at least ``line_min_height_m`` up; heights from all.
 
     ``xyz`` may be levelled (see ``level_rotation``); ``sensor_xyz`` (M, 3) are then the same points in
     the sensor's own frame, where the beams' elevations (the top-beam test) are measured. Cells
-    closer than ``reach_from_m`` never count as reaching the top beam."""
+    closer than ``reach_from_m`` never count as reaching the top beam. ``lines_only``: only what
+    placing lines needs (point_cell, count, centroid, scatter, top, bottom; the rest empty)."""
     sensor_xyz = xyz if sensor_xyz is None else sensor_xyz
     ci = np.floor(xyz[:, 0] / config.cell_m).astype(np.int64)
     cj = np.floor(xyz[:, 1] / config.cell_m).astype(np.int64)
     i0, j0, width = int(ci.min()), int(cj.min()), int(cj.max() - cj.min()) + 1
     key = (ci - i0) * width + (cj - j0)
     _, cell = np.unique(key, return_inverse=True)
-    grid_keys, grid_counts = np.unique(key[height <= BEHIND_MAX_HEIGHT_M], return_counts=True)
+    if lines_only:
+        grid_keys, grid_counts = np.zeros(0, np.int64), np.zeros(0, np.int64)
+    else:
+        grid_keys, grid_counts = np.unique(key[height <= BEHIND_MAX_HEIGHT_M], return_counts=True)
     n_all = int(cell.max()) + 1
     top = np.full(n_all, -np.inf)
     np.maximum.at(top, cell, height)
@@ -248,6 +252,10 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
     centroid = np.column_stack([np.bincount(c, x, n), np.bincount(c, y, n)]) / np.maximum(count, 1)[:, None]
     dx, dy = x - centroid[c, 0], y - centroid[c, 1]
     scatter = np.column_stack([np.bincount(c, dx * dx, n), np.bincount(c, dx * dy, n), np.bincount(c, dy * dy, n)])
+    if lines_only:
+        none = np.zeros(n, bool)
+        return Cells(point_cell, count, centroid, scatter, top[candidate], bottom, none, none,
+                     grid_keys, grid_counts, (config.cell_m, i0, j0, width))
     # How close each cell comes to the top beam: the largest z - range * tan(top beam) (<= 0 below it),
     # and whether the sensor sees over it (a higher return farther away in the same direction).
     sx, sy, sz = sensor_xyz[upper, 0], sensor_xyz[upper, 1], sensor_xyz[upper, 2]
@@ -582,7 +590,7 @@ def scan_lean(xyz: np.ndarray, height: np.ndarray, tan_top: float, step: float |
         config = config.model_copy(update={"link_azimuth_deg": config.link_azimuth_deg * k})
     if len(band) < config.min_points:
         return np.zeros(2)
-    cells = structure_cells(xyz[band], height[band], tan_top, config)
+    cells = structure_cells(xyz[band], height[band], tan_top, config, lines_only=True)
     label = cell_pieces(cells, link_cells(cells.centroid, cells.count, config), config)
     return wall_lean(xyz[band], height[band], cells, label, config, min_points=max(10, 30 // k))
 
