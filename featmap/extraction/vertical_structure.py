@@ -1,36 +1,62 @@
 """Walls of one LiDAR scan from its vertical structure (``extraction.method_3d: vertical_structure``).
 
-A wall is a thin, straight line in the top view whose points rise high above the ground next to
+A wall is a thin, straight line in the top view whose returns stand high above the ground next to
 it. The scan is never searched for planes, so no ground slab, car roof or tree crown can take a
 wall's points away. One pass, no randomness:
 
 1. **Crop** (velodyne frame): returns within ``min_range_m`` .. ``max_range_m``. The upper limit is
-   the sensor's, not an accuracy crop: far walls are kept or dropped by their sampling (step 6).
+   the sensor's (250 m), not an accuracy crop: far walls are kept or dropped by their sampling.
 2. **Local ground**: the lowest return of each ``ground_cell_m`` cell (returns far below their
    neighbours' are outliers), lowered where a nearby cell's ground plus a slope of at most
    ``ground_max_slope`` is lower (a wall's base hidden behind a fence takes the road's height).
    Heights are measured from this, so sloped roads, curbs and embankments need no global plane.
-3. **Structure cells**: returns more than ``ground_margin_m`` above the ground are binned in
+3. **Levelling** (``level``): a vehicle on a sloped street pitches and rolls its sensor, and a wall,
+   vertical in the world, leans in the sensor's frame (2 deg move a 15 m high wall's top by half a
+   metre). Line pieces are found (steps 4-6) among the returns within ``LEAN_BAND_M`` of the
+   sensor's height (thinned to ``LEAN_POINTS``), each straight piece's offset from its line is
+   regressed on height, and the common lean of all pieces (least squares, weighted by their height
+   spread, without the pieces that disagree) gives the world's vertical; the returns are rotated
+   to make it the z axis. Later stages place lines in this levelled frame; the beams' elevations
+   (the top-beam tests) stay measured in the sensor's frame; the walls found are given back in the
+   sensor's frame, where the plane of each cuts the height of its returns, so that
+   ``segments_to_world`` puts them exactly back on the wall. A levelled wall may lean at most
+   ``max_lean_deg`` more (the per-piece lean taken out of its spread).
+4. **Structure cells**: returns more than ``ground_margin_m`` above the ground are binned in
    ``cell_m`` cells; a cell is a candidate when its highest return is at least ``cell_min_top_m``
-   up (this drops curbs, low bushes and the lower half of cars, not a wall seen behind them).
-4. **Lines of cells**: every candidate cell votes, with its neighbours (within ``link_radius_m``,
+   up (this drops curbs, low bushes and the lower half of cars, not a wall seen behind them). Each
+   cell knows whether the scan's top beam hit it (and the sensor does not see over it), or whether
+   the top beam stopped in front of it (its top is hidden), and reaching the top beam counts only
+   where that beam passes ``reach_min_m`` above the ground under the sensor (beyond ~8 m for an
+   HDL-64: closer, a van stops it too).
+5. **Lines of cells**: every candidate cell votes, with its neighbours (within ``link_radius_m``,
    or within ``link_azimuth_steps`` of the scan's azimuth steps and ``link_radial_m`` as seen from the
-   sensor, which reaches the sparse samples of far walls and of walls seen at grazing incidence), for
-   its dominant direction; two cells are linked when both have a line
-   through them, the lines agree within ``link_angle_deg`` and each cell lies within
-   ``line_tolerance_m`` of the other's line. Connected cells form a line piece, so a hedge, a car
-   or a tree next to a wall does not bend it, and walls meeting at a corner stay apart.
-5. **Pieces**: a total-least-squares line through each group's returns; returns farther than
+   sensor, which reaches the sparse samples of far walls; or, for two columns of returns one
+   azimuth step apart, ranges as on a wall seen up to ``link_grazing_deg`` from head-on: far walls
+   along the street, whose columns lie metres apart), for its dominant direction; two cells are
+   linked when both have a line through them, the lines agree within ``link_angle_deg`` and each
+   cell lies within ``line_tolerance_m`` of the other's line. Connected cells form a line piece, so
+   a hedge, a car or a tree next to a wall does not bend it, and walls meeting at a corner stay
+   apart.
+6. **Pieces**: a total-least-squares line through each group's returns; returns farther than
    ``inlier_tolerance_m`` from it are dropped, the rest is cut where it leaves a gap longer than
    ``max_gap_m``; pieces on one line with ends less than ``merge_gap_m`` apart are joined.
-6. **Walls**: a piece is a wall when it has ``min_points`` returns, ``min_length_m`` of length,
-   ``max_rms_m`` of spread about its line at most, spans ``min_span_m`` in height, reaches
-   ``min_top_m`` above the local ground, and is tall in one of three ways: it is hit by the scan's
-   top beam (half of its 0.5 m columns within ``envelope_margin_deg`` of it), or it is ``tall_m``
-   high, or it is ``long_m`` long and ``long_min_top_m`` high. Heights are the median over the
-   columns, so a tree crown over a fence does not lift it. A facade at 20 m is seen only up to
-   ~2.5 m by an HDL-64 (upper beam +2 deg), but it is hit by the top beam; a 1.5 m car never is,
-   nor is a 2 m van at 11 m, which is also too short to pass as a boundary wall.
+7. **Walls**: a piece is a wall when it has ``min_points`` returns, ``min_length_m`` of length,
+   ``max_rms_m`` of spread about its line at most, ``min_core_fraction`` of them close to their
+   column's median offset and little seen through it (``max_behind``), is not seen edge-on
+   (``max_incidence_deg``), spans ``min_span_m`` in height, reaches ``min_top_m`` above the local
+   ground, and is tall in one of three ways: it stops the scan's top beam (half of its 0.5 m
+   columns whose top is seen), or it is ``tall_m`` high, or it is ``long_m`` long and
+   ``long_min_top_m`` high. Heights are medians over the columns, so a tree crown over a fence
+   does not lift it. A facade at 20 m is seen only up to ~2.5 m by an HDL-64 (upper beam +2 deg),
+   but it stops the top beam; a 1.5 m car never does, nor does a 2 m van at 11 m.
+   *Long pieces* (``solid_length_m``) are no tree crown: they may float (a wall seen over the house
+   in front of it), may be seen over a narrow band when they stop the top beam (``solid_min_span_m``:
+   a facade behind a hedge, or up a slope under the beam), and may have few returns
+   (``solid_min_points``). *Shorter pieces* must reach down near the ground
+   (``short_max_bottom_m``: a crown floats). The spread of the scan's long walls (their median rms,
+   i.e. the sensor's noise) bounds everyone's: ``solid_rms_factor`` times it for long pieces,
+   ``short_rms_factor`` for short ones (a crown's facets, a wall merged with a crown in line with
+   it, are thicker than the scan's walls).
 
 Numpy in, numpy out; the same scan always gives the same segments (no random sampling).
 """
@@ -50,6 +76,7 @@ from featmap.extraction.base import Extractor, ScanSegments, StageClock
 class VerticalStructureConfig(Section):
     """Wall extraction from vertical structure (velodyne frame, metres)."""
 
+    # crop and local ground
     min_range_m: float = Field(2.5, ge=0, description="drop returns closer than this (vehicle body)")
     max_range_m: float = Field(250.0, gt=0, description="drop returns farther than this (the sensor's range; far walls are judged by their sampling)")
     ground_cell_m: float = Field(2.0, gt=0, description="cell of the local ground (lowest return per cell)")
@@ -57,50 +84,53 @@ class VerticalStructureConfig(Section):
     ground_reach_m: float = Field(12.0, ge=0, description="... over at most this distance (fills cells whose ground is hidden)")
     ground_outlier_m: float = Field(1.0, gt=0, description="a cell whose lowest return is this far below its neighbours' median is an outlier")
     ground_margin_m: float = Field(0.25, ge=0, description="returns this close above the local ground are ground")
+    # levelling
+    level: bool = Field(True, description="measure how the sensor leans from the walls' lean and level the returns before placing lines")
+    max_lean_deg: float = Field(3.0, ge=0, le=15, description="a levelled wall leans at most this much (its spread is measured about that lean; a tree crown's facets lean more)")
+    # structure cells and lines of cells
     cell_m: float = Field(0.15, gt=0, description="top-view cell of the structure grid")
     cell_min_top_m: float = Field(1.2, ge=0, description="a cell takes part when its highest return is this far above the ground")
     line_min_height_m: float = Field(1.0, ge=0, description="only returns this high above the ground place the lines (a car or bush in front of a wall does not pull it)")
     link_radius_m: float = Field(0.45, gt=0, description="cells this close are neighbours ...")
     link_azimuth_steps: float = Field(3.33, ge=0, description="... and so are cells seen within this many of the scan's azimuth steps (measured from its returns) ...")
     link_azimuth_deg: float = Field(0.6, gt=0, description="... (or within this azimuth when the step cannot be measured; 0 steps = always) ...")
-    link_radial_m: float = Field(2.0, gt=0, description="... that are this close in range (far walls, walls seen at grazing incidence)")
-    link_grazing_deg: float = Field(85.0, ge=0, lt=90, description="... and so are cells one azimuth step apart whose ranges differ as those of a wall seen up to this far from head-on (sparse samples of far walls along the street; 0 = off)")
-    link_column_m: float = Field(1.0, ge=0, description="... when both are columns of returns this high (a wall's; a tree crown's returns at several depths are not)")
+    link_radial_m: float = Field(2.0, gt=0, description="... that are this close in range (far walls, walls seen at grazing incidence) ...")
+    link_grazing_deg: float = Field(85.0, ge=0, lt=90, description="... and so are two columns one azimuth step apart whose ranges differ as on a wall seen up to this far from head-on (far walls along the street; 0 = off) ...")
+    link_column_m: float = Field(1.0, ge=0, description="... a column being a cell whose returns stand this high (a wall's; a tree crown's returns at several depths do not)")
     link_angle_deg: float = Field(10.0, gt=0, le=90, description="linked cells' line directions differ by at most this")
     line_tolerance_m: float = Field(0.08, gt=0, description="a linked cell lies this close to its neighbour's line")
     min_support: int = Field(2, ge=1, description="a cell has a line through it when this many neighbours lie on it")
+    # pieces
     inlier_tolerance_m: float = Field(0.15, gt=0, description="returns farther than this from a piece's line are not part of it")
     max_gap_m: float = Field(1.0, gt=0, description="cut a piece where its returns leave a gap this long")
     merge_gap_m: float = Field(1.5, ge=0, description="join pieces on one line whose ends are this close")
     merge_angle_deg: float = Field(3.0, ge=0, le=90, description="... whose directions differ by at most this")
     merge_offset_m: float = Field(0.12, ge=0, description="... and whose midpoints lie this close to the other's line")
+    # walls: every piece
     min_points: int = Field(20, ge=2, description="a wall has at least this many returns")
     min_length_m: float = Field(1.0, ge=0, description="a wall is at least this long")
     max_rms_m: float = Field(0.08, gt=0, description="a wall's returns spread at most this much about its line (rms) ...")
     core_m: float = Field(0.05, gt=0, description="... and at least min_core_fraction of them lie this close to the median of their 0.5 m column ...")
-    min_core_fraction: float = Field(0.65, ge=0, le=1, description="... (foliage scatters its returns evenly; a facade's recesses shift whole columns), and ...")
+    min_core_fraction: float = Field(0.65, ge=0, le=1, description="... (foliage scatters its returns evenly; a facade's recesses shift whole columns) ...")
+    max_behind: float = Field(1.0, ge=0, description="... and at most this many returns per wall return lie up to 1 m behind it (a wall hides what is behind it; foliage does not)")
     max_incidence_deg: float = Field(88.0, ge=0, le=90, description="a wall is seen at most this far from head-on (returns along a ray are a round thing seen at several depths, not a surface seen edge-on)")
-    max_behind: float = Field(1.0, ge=0, description="... at most this many returns per wall return lie up to 1 m behind it (a wall hides what is behind it; foliage does not)")
     min_span_m: float = Field(0.8, ge=0, description="a wall's returns span at least this much in height ...")
-    max_bottom_m: float = Field(2.0, ge=0, description="... and reach down to this height above the ground (plus one of the scan's beam spacings at its range) or lower: a tree crown floats, a wall's base is hidden at most by a car or a fence")
-    elevation_step_deg: float = Field(0.5, ge=0, description="the sensor's beam spacing near the horizon, when it cannot be measured from the scan")
-    solid_length_m: float = Field(3.0, ge=0, description="a piece this long is no tree crown (or other round thing): it may float (seen over something in front), ...")
-    solid_min_span_m: float = Field(0.3, ge=0, description="... span this much in height and reach cell_min_top_m when it stops the top beam (seen over a hedge, or under the beam up a slope) ...")
-    solid_min_points: int = Field(20, ge=2, description="... and have this many returns (a sparse far wall); a shorter piece ...")
-    short_max_bottom_m: float = Field(1.0, ge=0, description="... reaches down to this height (plus a beam spacing) ...")
-    solid_rms_factor: float = Field(3.0, gt=0, description="... spreads at most this many times as much as the scan's long walls (median; when it has 3); a shorter piece ...")
-    short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls (median; when it has 3) ...")
-    short_min_core_fraction: float = Field(0.65, ge=0, le=1, description="... and is this thin (see min_core_fraction)")
-    min_top_m: float = Field(1.5, ge=0, description="a wall reaches at least this high above the local ground, and ...")
+    min_top_m: float = Field(1.5, ge=0, description="... and reach at least this high above the local ground, and it ...")
     tall_m: float = Field(2.3, ge=0, description="... is hit by the scan's top beam, or is this high (taller than vans, fences, hedges), ...")
     long_m: float = Field(6.0, ge=0, description="... or is at least this long (longer than a vehicle) ...")
     long_min_top_m: float = Field(1.8, ge=0, description="... and this high (a garden or boundary wall; taller than cars and fences)")
     reach_min_m: float = Field(2.0, ge=0, description="reaching the top beam counts only where it passes this high above the ground under the sensor (higher than cars)")
     envelope_margin_m: float = Field(0.15, ge=0, description="reaching the top beam = a return this close below it ...")
     envelope_margin_deg: float = Field(0.3, ge=0, description="... or within this elevation of it (far away)")
-    level: bool = Field(True, description="measure how the sensor leans from the walls' lean and level the returns before placing lines")
-    max_lean_deg: float = Field(3.0, ge=0, le=15, description="... after which a wall leans at most this much (a tree crown's facets lean more)")
     top_beam_quantile: float = Field(0.999, gt=0, le=1, description="the scan's top beam = this quantile of its returns' elevation angles")
+    elevation_step_deg: float = Field(0.5, ge=0, description="the sensor's beam spacing near the horizon, when it cannot be measured from the scan")
+    # walls: long pieces and short ones
+    solid_length_m: float = Field(3.0, ge=0, description="a piece this long is no tree crown (nor other round thing): it may float (seen over something in front), ...")
+    solid_min_span_m: float = Field(0.3, ge=0, description="... may span only this much in height and reach only cell_min_top_m when it stops the top beam (seen over a hedge, or under the beam up a slope) ...")
+    solid_min_points: int = Field(20, ge=2, description="... needs this many returns (fewer: sparse far walls) ...")
+    solid_rms_factor: float = Field(3.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do (their median, when there are 3; that is the sensor's noise)")
+    short_max_bottom_m: float = Field(1.0, ge=0, description="a shorter piece reaches down to this height above the ground (plus one of the scan's beam spacings at its range): a tree crown floats ...")
+    short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do")
 
 
 COLUMN_M = 0.5
@@ -710,7 +740,9 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     Heights are judged along the piece, in ``COLUMN_M`` columns: its top is the median of its columns'
     highest points, and it reaches the top beam when at least half of its columns do (within
     ``envelope_margin_m`` or ``envelope_margin_deg``), so a tree crown hanging over a fence does not
-    make the fence a wall.
+    make the fence a wall; columns whose top is hidden by something in front count for neither.
+    Long pieces (``solid_length_m``) may float, and may be seen over a narrow band when they reach
+    the top beam; shorter ones must reach down near the ground (see the module docstring).
     """
     out = np.full(len(cells), -1)
     members = np.flatnonzero(label >= 0)
@@ -742,7 +774,7 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     reaches_top = (seen > 0) & (np.bincount(col_piece, reaching, n) >= 0.5 * seen)
     bottom = np.full(n, np.inf)
     np.minimum.at(bottom, piece, cells.bottom[members])
-    # How far each cell's lowest return may float: max_bottom_m plus one beam spacing at its range
+    # How far each cell's lowest return floats above the ground, less one beam spacing at its range
     # (a far wall's lowest returns can be a beam apart, and the lowest of them counts as ground).
     spacing = np.hypot(cells.centroid[members, 0], cells.centroid[members, 1]) * np.tan(np.deg2rad(config.elevation_step_deg))
     floats = np.full(n, np.inf)
@@ -896,14 +928,14 @@ def _points_behind(cells: Cells, a: np.ndarray, b: np.ndarray, config: VerticalS
 
 def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfig) -> ScanSegments:
     """The pieces that pass the final tests (returns, length, spread, thinness, opacity, not seen
-    edge-on) as segments."""
+    edge-on, spread against the scan's long walls) as segments (in the frame of ``measures``)."""
     if measures is None:
         return ScanSegments.empty()
     m = measures
     solid = m.length >= config.solid_length_m
     wall = (m.count >= np.where(solid, config.solid_min_points, config.min_points)) & (m.length >= config.min_length_m)
     wall &= m.rms <= config.max_rms_m
-    wall &= m.core >= np.where(solid, config.min_core_fraction, config.short_min_core_fraction)
+    wall &= m.core >= config.min_core_fraction
     wall &= m.behind <= config.max_behind
     mid = (m.a + m.b) / 2
     along_ray = np.abs(((m.b - m.a) * mid).sum(1)) / np.maximum(m.length * np.hypot(mid[:, 0], mid[:, 1]), 1e-9)
