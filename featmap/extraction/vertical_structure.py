@@ -12,10 +12,10 @@ wall's points away. One pass, no randomness:
    Heights are measured from this, so sloped roads, curbs and embankments need no global plane.
 3. **Levelling** (``level``): a vehicle on a sloped street pitches and rolls its sensor, and a wall,
    vertical in the world, leans in the sensor's frame (2 deg move a 15 m high wall's top by half a
-   metre). Line pieces are found (steps 4-6) among the returns within ``LEAN_BAND_M`` of the
-   sensor's height (thinned to ``LEAN_POINTS``), each straight piece's offset from its line is
-   regressed on height, and the common lean of all pieces (least squares, weighted by their height
-   spread, without the pieces that disagree) gives the world's vertical; the returns are rotated
+   metre). Lines of cells are found (steps 4-5) among the returns within ``LEAN_BAND_M`` of the
+   sensor's height (thinned to ``LEAN_POINTS``), each straight group's offset from its line is
+   regressed on height, and the common lean of all groups (least squares, weighted by their height
+   spread, without the groups that disagree) gives the world's vertical; the returns are rotated
    to make it the z axis. Later stages place lines in this levelled frame; the beams' elevations
    (the top-beam tests) stay measured in the sensor's frame; the walls found are given back in the
    sensor's frame, where the plane of each cuts the height of its returns, so that
@@ -609,7 +609,7 @@ def scan_lean(xyz: np.ndarray, height: np.ndarray, tan_top: float, step: float |
               config: VerticalStructureConfig) -> np.ndarray:
     """(2,) the lean of the world's vertical in the frame of (N, 3) non-ground returns (``height`` (N,)
     above the local ground; ``step`` the scan's azimuth step in degrees, or None): ``wall_lean`` of
-    the line pieces found among the returns within ``LEAN_BAND_M`` of the sensor's height. Dense scans
+    the groups of linked cells (step 5) among the returns within ``LEAN_BAND_M`` of the sensor's height. Dense scans
     are thinned to about ``LEAN_POINTS`` returns by keeping every k-th azimuth step (the links reach
     k times as far), which leaves the walls' lean measurable at a fraction of the cost."""
     band = np.flatnonzero(np.abs(xyz[:, 2]) <= LEAN_BAND_M)
@@ -621,7 +621,8 @@ def scan_lean(xyz: np.ndarray, height: np.ndarray, tan_top: float, step: float |
     if len(band) < config.min_points:
         return np.zeros(2)
     cells = structure_cells(xyz[band], height[band], tan_top, config, lines_only=True)
-    label = cell_pieces(cells, link_cells(cells.centroid, cells.count, config), config)
+    # The groups of linked cells are straight enough to measure a lean: no need to cut them into pieces.
+    label = link_cells(cells.centroid, cells.count, config)
     return wall_lean(xyz[band], height[band], cells, label, config, min_points=max(10, 30 // k))
 
 
