@@ -1,36 +1,62 @@
 """Walls of one LiDAR scan from its vertical structure (``extraction.method_3d: vertical_structure``).
 
-A wall is a thin, straight line in the top view whose points rise high above the ground next to
+A wall is a thin, straight line in the top view whose returns stand high above the ground next to
 it. The scan is never searched for planes, so no ground slab, car roof or tree crown can take a
 wall's points away. One pass, no randomness:
 
 1. **Crop** (velodyne frame): returns within ``min_range_m`` .. ``max_range_m``. The upper limit is
-   the sensor's, not an accuracy crop: far walls are kept or dropped by their sampling (step 6).
+   the sensor's (250 m), not an accuracy crop: far walls are kept or dropped by their sampling.
 2. **Local ground**: the lowest return of each ``ground_cell_m`` cell (returns far below their
    neighbours' are outliers), lowered where a nearby cell's ground plus a slope of at most
    ``ground_max_slope`` is lower (a wall's base hidden behind a fence takes the road's height).
    Heights are measured from this, so sloped roads, curbs and embankments need no global plane.
-3. **Structure cells**: returns more than ``ground_margin_m`` above the ground are binned in
+3. **Levelling** (``level``): a vehicle on a sloped street pitches and rolls its sensor, and a wall,
+   vertical in the world, leans in the sensor's frame (2 deg move a 15 m high wall's top by half a
+   metre). Lines of cells are found (steps 4-5) among the returns within ``LEAN_BAND_M`` of the
+   sensor's height (thinned to ``LEAN_POINTS``), each straight group's offset from its line is
+   regressed on height, and the common lean of all groups (least squares, weighted by their height
+   spread, without the groups that disagree) gives the world's vertical; the returns are rotated
+   to make it the z axis. Later stages place lines in this levelled frame; the beams' elevations
+   (the top-beam tests) stay measured in the sensor's frame; the walls found are given back in the
+   sensor's frame, where the plane of each cuts the height of its returns, so that
+   ``segments_to_world`` puts them exactly back on the wall. A levelled wall may lean at most
+   ``max_lean_deg`` more (the per-piece lean taken out of its spread).
+4. **Structure cells**: returns more than ``ground_margin_m`` above the ground are binned in
    ``cell_m`` cells; a cell is a candidate when its highest return is at least ``cell_min_top_m``
-   up (this drops curbs, low bushes and the lower half of cars, not a wall seen behind them).
-4. **Lines of cells**: every candidate cell votes, with its neighbours (within ``link_radius_m``,
+   up (this drops curbs, low bushes and the lower half of cars, not a wall seen behind them). Each
+   cell knows whether the scan's top beam hit it (and the sensor does not see over it), or whether
+   the top beam stopped in front of it (its top is hidden), and reaching the top beam counts only
+   where that beam passes ``reach_min_m`` above the ground under the sensor (beyond ~8 m for an
+   HDL-64: closer, a van stops it too).
+5. **Lines of cells**: every candidate cell votes, with its neighbours (within ``link_radius_m``,
    or within ``link_azimuth_steps`` of the scan's azimuth steps and ``link_radial_m`` as seen from the
-   sensor, which reaches the sparse samples of far walls and of walls seen at grazing incidence), for
-   its dominant direction; two cells are linked when both have a line
-   through them, the lines agree within ``link_angle_deg`` and each cell lies within
-   ``line_tolerance_m`` of the other's line. Connected cells form a line piece, so a hedge, a car
-   or a tree next to a wall does not bend it, and walls meeting at a corner stay apart.
-5. **Pieces**: a total-least-squares line through each group's returns; returns farther than
+   sensor, which reaches the sparse samples of far walls; or, for two columns of returns one
+   azimuth step apart, ranges as on a wall seen up to ``link_grazing_deg`` from head-on: far walls
+   along the street, whose columns lie metres apart), for its dominant direction; two cells are
+   linked when both have a line through them, the lines agree within ``link_angle_deg`` and each
+   cell lies within ``line_tolerance_m`` of the other's line. Connected cells form a line piece, so
+   a hedge, a car or a tree next to a wall does not bend it, and walls meeting at a corner stay
+   apart.
+6. **Pieces**: a total-least-squares line through each group's returns; returns farther than
    ``inlier_tolerance_m`` from it are dropped, the rest is cut where it leaves a gap longer than
    ``max_gap_m``; pieces on one line with ends less than ``merge_gap_m`` apart are joined.
-6. **Walls**: a piece is a wall when it has ``min_points`` returns, ``min_length_m`` of length,
-   ``max_rms_m`` of spread about its line at most, spans ``min_span_m`` in height, reaches
-   ``min_top_m`` above the local ground, and is tall in one of three ways: it is hit by the scan's
-   top beam (half of its 0.5 m columns within ``envelope_margin_deg`` of it), or it is ``tall_m``
-   high, or it is ``long_m`` long and ``long_min_top_m`` high. Heights are the median over the
-   columns, so a tree crown over a fence does not lift it. A facade at 20 m is seen only up to
-   ~2.5 m by an HDL-64 (upper beam +2 deg), but it is hit by the top beam; a 1.5 m car never is,
-   nor is a 2 m van at 11 m, which is also too short to pass as a boundary wall.
+7. **Walls**: a piece is a wall when it has ``min_points`` returns, ``min_length_m`` of length,
+   ``max_rms_m`` of spread about its line at most, ``min_core_fraction`` of them close to their
+   column's median offset and little seen through it (``max_behind``), is not seen edge-on
+   (``max_incidence_deg``), spans ``min_span_m`` in height, reaches ``min_top_m`` above the local
+   ground, and is tall in one of three ways: it stops the scan's top beam (half of its 0.5 m
+   columns whose top is seen), or it is ``tall_m`` high, or it is ``long_m`` long and
+   ``long_min_top_m`` high. Heights are medians over the columns, so a tree crown over a fence
+   does not lift it. A facade at 20 m is seen only up to ~2.5 m by an HDL-64 (upper beam +2 deg),
+   but it stops the top beam; a 1.5 m car never does, nor does a 2 m van at 11 m.
+   *Long pieces* (``solid_length_m``) are no tree crown: they may float (a wall seen over the house
+   in front of it), may be seen over a narrow band when they stop the top beam (``solid_min_span_m``:
+   a facade behind a hedge, or up a slope under the beam), and may have few returns
+   (``solid_min_points``). *Shorter pieces* must reach down near the ground
+   (``short_max_bottom_m``: a crown floats). The spread of the scan's long walls (their median rms,
+   i.e. the sensor's noise) bounds everyone's: ``solid_rms_factor`` times it for long pieces,
+   ``short_rms_factor`` for short ones (a crown's facets, a wall merged with a crown in line with
+   it, are thicker than the scan's walls).
 
 Numpy in, numpy out; the same scan always gives the same segments (no random sampling).
 """
@@ -50,44 +76,61 @@ from featmap.extraction.base import Extractor, ScanSegments, StageClock
 class VerticalStructureConfig(Section):
     """Wall extraction from vertical structure (velodyne frame, metres)."""
 
+    # crop and local ground
     min_range_m: float = Field(2.5, ge=0, description="drop returns closer than this (vehicle body)")
-    max_range_m: float = Field(120.0, gt=0, description="drop returns farther than this (the sensor's range; far walls are judged by their sampling)")
+    max_range_m: float = Field(250.0, gt=0, description="drop returns farther than this (the sensor's range; far walls are judged by their sampling)")
     ground_cell_m: float = Field(2.0, gt=0, description="cell of the local ground (lowest return per cell)")
     ground_max_slope: float = Field(0.1, ge=0, description="the ground rises at most this much per metre away from a cell (rise/run)")
     ground_reach_m: float = Field(12.0, ge=0, description="... over at most this distance (fills cells whose ground is hidden)")
     ground_outlier_m: float = Field(1.0, gt=0, description="a cell whose lowest return is this far below its neighbours' median is an outlier")
     ground_margin_m: float = Field(0.25, ge=0, description="returns this close above the local ground are ground")
+    # levelling
+    level: bool = Field(True, description="measure how the sensor leans from the walls' lean and level the returns before placing lines")
+    max_lean_deg: float = Field(3.0, ge=0, le=15, description="a levelled wall leans at most this much (its spread is measured about that lean; a tree crown's facets lean more)")
+    # structure cells and lines of cells
     cell_m: float = Field(0.15, gt=0, description="top-view cell of the structure grid")
     cell_min_top_m: float = Field(1.2, ge=0, description="a cell takes part when its highest return is this far above the ground")
     line_min_height_m: float = Field(1.0, ge=0, description="only returns this high above the ground place the lines (a car or bush in front of a wall does not pull it)")
     link_radius_m: float = Field(0.45, gt=0, description="cells this close are neighbours ...")
     link_azimuth_steps: float = Field(3.33, ge=0, description="... and so are cells seen within this many of the scan's azimuth steps (measured from its returns) ...")
     link_azimuth_deg: float = Field(0.6, gt=0, description="... (or within this azimuth when the step cannot be measured; 0 steps = always) ...")
-    link_radial_m: float = Field(2.0, gt=0, description="... that are this close in range (far walls, walls seen at grazing incidence)")
+    link_radial_m: float = Field(2.0, gt=0, description="... that are this close in range (far walls, walls seen at grazing incidence) ...")
+    link_grazing_deg: float = Field(85.0, ge=0, lt=90, description="... and so are two columns one azimuth step apart whose ranges differ as on a wall seen up to this far from head-on (far walls along the street; 0 = off) ...")
+    link_column_m: float = Field(1.0, ge=0, description="... a column being a cell whose returns stand this high (a wall's; a tree crown's returns at several depths do not)")
     link_angle_deg: float = Field(10.0, gt=0, le=90, description="linked cells' line directions differ by at most this")
     line_tolerance_m: float = Field(0.08, gt=0, description="a linked cell lies this close to its neighbour's line")
     min_support: int = Field(2, ge=1, description="a cell has a line through it when this many neighbours lie on it")
+    # pieces
     inlier_tolerance_m: float = Field(0.15, gt=0, description="returns farther than this from a piece's line are not part of it")
     max_gap_m: float = Field(1.0, gt=0, description="cut a piece where its returns leave a gap this long")
     merge_gap_m: float = Field(1.5, ge=0, description="join pieces on one line whose ends are this close")
     merge_angle_deg: float = Field(3.0, ge=0, le=90, description="... whose directions differ by at most this")
     merge_offset_m: float = Field(0.12, ge=0, description="... and whose midpoints lie this close to the other's line")
+    # walls: every piece
     min_points: int = Field(20, ge=2, description="a wall has at least this many returns")
     min_length_m: float = Field(1.0, ge=0, description="a wall is at least this long")
     max_rms_m: float = Field(0.08, gt=0, description="a wall's returns spread at most this much about its line (rms) ...")
     core_m: float = Field(0.05, gt=0, description="... and at least min_core_fraction of them lie this close to the median of their 0.5 m column ...")
-    min_core_fraction: float = Field(0.65, ge=0, le=1, description="... (foliage scatters its returns evenly; a facade's recesses shift whole columns), and ...")
-    max_behind: float = Field(1.0, ge=0, description="... at most this many returns per wall return lie up to 1 m behind it (a wall hides what is behind it; foliage does not)")
+    min_core_fraction: float = Field(0.65, ge=0, le=1, description="... (foliage scatters its returns evenly; a facade's recesses shift whole columns) ...")
+    max_behind: float = Field(1.0, ge=0, description="... and at most this many returns per wall return lie up to 1 m behind it (a wall hides what is behind it; foliage does not)")
+    max_incidence_deg: float = Field(88.0, ge=0, le=90, description="a wall is seen at most this far from head-on (returns along a ray are a round thing seen at several depths, not a surface seen edge-on)")
     min_span_m: float = Field(0.8, ge=0, description="a wall's returns span at least this much in height ...")
-    max_bottom_m: float = Field(2.0, ge=0, description="... and reach down to this height above the ground (plus one of the scan's beam spacings at its range) or lower: a tree crown floats, a wall's base is hidden at most by a car or a fence")
-    elevation_step_deg: float = Field(0.5, ge=0, description="the sensor's beam spacing near the horizon, when it cannot be measured from the scan")
-    min_top_m: float = Field(1.5, ge=0, description="a wall reaches at least this high above the local ground, and ...")
+    min_top_m: float = Field(1.5, ge=0, description="... and reach at least this high above the local ground, and it ...")
     tall_m: float = Field(2.3, ge=0, description="... is hit by the scan's top beam, or is this high (taller than vans, fences, hedges), ...")
     long_m: float = Field(6.0, ge=0, description="... or is at least this long (longer than a vehicle) ...")
     long_min_top_m: float = Field(1.8, ge=0, description="... and this high (a garden or boundary wall; taller than cars and fences)")
+    reach_min_m: float = Field(2.0, ge=0, description="reaching the top beam counts only where it passes this high above the ground under the sensor (higher than cars)")
     envelope_margin_m: float = Field(0.15, ge=0, description="reaching the top beam = a return this close below it ...")
     envelope_margin_deg: float = Field(0.3, ge=0, description="... or within this elevation of it (far away)")
     top_beam_quantile: float = Field(0.999, gt=0, le=1, description="the scan's top beam = this quantile of its returns' elevation angles")
+    elevation_step_deg: float = Field(0.5, ge=0, description="the sensor's beam spacing near the horizon, when it cannot be measured from the scan")
+    # walls: long pieces and short ones
+    solid_length_m: float = Field(3.0, ge=0, description="a piece this long is no tree crown (nor other round thing): it may float (seen over something in front), ...")
+    solid_min_span_m: float = Field(0.3, ge=0, description="... may span only this much in height and reach only cell_min_top_m when it stops the top beam (seen over a hedge, or under the beam up a slope) ...")
+    solid_min_points: int = Field(20, ge=2, description="... needs this many returns (fewer: sparse far walls) ...")
+    solid_rms_factor: float = Field(3.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do (their median, when there are 3; that is the sensor's noise)")
+    short_max_bottom_m: float = Field(1.0, ge=0, description="a shorter piece reaches down to this height above the ground (plus one of the scan's beam spacings at its range): a tree crown floats ...")
+    short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do")
 
 
 COLUMN_M = 0.5
@@ -98,6 +141,8 @@ BEHIND_M = 1.0
 """How far behind a wall's line returns count as seen through it (metres) ..."""
 BEHIND_MAX_HEIGHT_M = 1.8
 """... if they are at most this high above the ground (a tree crown behind a low wall does not count)."""
+TOP_BEAM_DEG = 0.1
+"""Returns within this elevation of the top beam are the top beam's (degrees)."""
 SEEN_OVER_M = 0.5
 """A return this much farther away than a structure, and higher, was seen over it (metres)."""
 
@@ -168,6 +213,7 @@ class Cells:
         top, bottom: (C,) highest and lowest point above the local ground.
         reaches_top: (C,) a point of the cell is hit by (within the envelope margins of) the top beam,
             and the sensor does not see over the cell.
+        hidden_above: (C,) the top beam stopped nearer in the cell's direction: its top is not seen.
         grid_keys, grid_counts, grid_origin: every cell (sorted keys) with non-ground points at most
             ``BEHIND_MAX_HEIGHT_M`` high, and how many, to count such points anywhere (``points_at``).
     """
@@ -179,6 +225,7 @@ class Cells:
     top: np.ndarray
     bottom: np.ndarray
     reaches_top: np.ndarray
+    hidden_above: np.ndarray
     grid_keys: np.ndarray
     grid_counts: np.ndarray
     grid_origin: tuple
@@ -197,16 +244,26 @@ class Cells:
         return len(self.count)
 
 
-def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config: VerticalStructureConfig) -> Cells:
+def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config: VerticalStructureConfig,
+                    sensor_xyz: np.ndarray | None = None, reach_from_m: float = 0.0, lines_only: bool = False) -> Cells:
     """Group (M, 3) non-ground points (``height`` (M,) above the local ground) into ``cell_m`` cells and
     keep the cells whose highest point is at least ``cell_min_top_m`` up. The cells' positions and
-    line moments come from their points at least ``line_min_height_m`` up; heights from all."""
+    line moments come from their points at least ``line_min_height_m`` up; heights from all.
+
+    ``xyz`` may be levelled (see ``level_rotation``); ``sensor_xyz`` (M, 3) are then the same points in
+    the sensor's own frame, where the beams' elevations (the top-beam test) are measured. Cells
+    closer than ``reach_from_m`` never count as reaching the top beam. ``lines_only``: only what
+    placing lines needs (point_cell, count, centroid, scatter, top, bottom; the rest empty)."""
+    sensor_xyz = xyz if sensor_xyz is None else sensor_xyz
     ci = np.floor(xyz[:, 0] / config.cell_m).astype(np.int64)
     cj = np.floor(xyz[:, 1] / config.cell_m).astype(np.int64)
     i0, j0, width = int(ci.min()), int(cj.min()), int(cj.max() - cj.min()) + 1
     key = (ci - i0) * width + (cj - j0)
     _, cell = np.unique(key, return_inverse=True)
-    grid_keys, grid_counts = np.unique(key[height <= BEHIND_MAX_HEIGHT_M], return_counts=True)
+    if lines_only:
+        grid_keys, grid_counts = np.zeros(0, np.int64), np.zeros(0, np.int64)
+    else:
+        grid_keys, grid_counts = np.unique(key[height <= BEHIND_MAX_HEIGHT_M], return_counts=True)
     n_all = int(cell.max()) + 1
     top = np.full(n_all, -np.inf)
     np.maximum.at(top, cell, height)
@@ -225,28 +282,37 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
     centroid = np.column_stack([np.bincount(c, x, n), np.bincount(c, y, n)]) / np.maximum(count, 1)[:, None]
     dx, dy = x - centroid[c, 0], y - centroid[c, 1]
     scatter = np.column_stack([np.bincount(c, dx * dx, n), np.bincount(c, dx * dy, n), np.bincount(c, dy * dy, n)])
+    if lines_only:
+        none = np.zeros(n, bool)
+        return Cells(point_cell, count, centroid, scatter, top[candidate], bottom, none, none,
+                     grid_keys, grid_counts, (config.cell_m, i0, j0, width))
     # How close each cell comes to the top beam: the largest z - range * tan(top beam) (<= 0 below it),
     # and whether the sensor sees over it (a higher return farther away in the same direction).
-    rng = np.hypot(x, y)
+    sx, sy, sz = sensor_xyz[upper, 0], sensor_xyz[upper, 1], sensor_xyz[upper, 2]
+    rng = np.hypot(sx, sy)
     reach = np.full(n, -np.inf)
-    np.maximum.at(reach, c, xyz[upper, 2] - rng * tan_top)
+    np.maximum.at(reach, c, sz - rng * tan_top)
     slope = np.full(n, -np.inf)
-    np.maximum.at(slope, c, xyz[upper, 2] / np.maximum(rng, 1e-9))
+    np.maximum.at(slope, c, sz / np.maximum(rng, 1e-9))
     cell_range = np.hypot(centroid[:, 0], centroid[:, 1])
     margin = np.maximum(config.envelope_margin_m, cell_range * np.tan(np.deg2rad(config.envelope_margin_deg)))
-    over_slope, over_range, az_bin = highest_returns(xyz, tan_top, config)
+    over_slope, over_range, top_range, az_bin = highest_returns(sensor_xyz, tan_top, config)
     b = az_bin(centroid)
     seen_over = (over_slope[b] > slope + 1e-4) & (over_range[b] > cell_range + SEEN_OVER_M)
-    return Cells(point_cell, count, centroid, scatter, top[candidate], bottom, (reach >= -margin) & ~seen_over,
+    reaches = (reach >= -margin) & ~seen_over & (cell_range >= reach_from_m)
+    hidden = ~reaches & (top_range[b] < cell_range - SEEN_OVER_M)
+    return Cells(point_cell, count, centroid, scatter, top[candidate], bottom, reaches, hidden,
                  grid_keys, grid_counts, (config.cell_m, i0, j0, width))
 
 
 def highest_returns(xyz: np.ndarray, tan_top: float, config: VerticalStructureConfig):
     """The highest return in each ``link_azimuth_deg / 2`` azimuth bin, among returns near the top beam.
 
-    Returns (slope (B,) largest z / range per bin (-inf: none), range (B,) of that return, a function
-    mapping (K, 2) x, y to their bin numbers (K,)). A structure whose bin holds a higher return farther
-    away does not stop the top beams: the sensor sees over it (a van, a hedge, a garden wall).
+    Returns (slope (B,) largest z / range per bin (-inf: none), range (B,) of that return, range (B,)
+    of the nearest return of the top beam (within ``TOP_BEAM_DEG``; inf: none), a function mapping
+    (K, 2) x, y to their bin numbers (K,)). A structure whose bin holds a higher return farther away
+    does not stop the top beams: the sensor sees over it (a van, a hedge, a garden wall); one whose
+    top beam stopped nearer is hidden above (its top is not seen).
     """
     width = np.deg2rad(config.link_azimuth_deg) / 2
     n_bins = int(np.ceil(2 * np.pi / width))
@@ -263,23 +329,32 @@ def highest_returns(xyz: np.ndarray, tan_top: float, config: VerticalStructureCo
     at_best = slope[high] >= best[bins]
     best_range = np.zeros(n_bins)
     best_range[bins[at_best]] = rng[high][at_best]
-    return best, best_range, az_bin
+    top = slope[high] >= tan_top - np.deg2rad(TOP_BEAM_DEG) * (1 + tan_top ** 2)
+    top_range = np.full(n_bins, np.inf)
+    np.minimum.at(top_range, bins[top], rng[high][top])
+    return best, best_range, top_range, az_bin
 
 
 # --- stage 4: lines of cells ----------------------------------------------------------------------------
 
-def neighbour_pairs(centroids: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+def neighbour_pairs(centroids: np.ndarray, config: VerticalStructureConfig,
+                    columns: np.ndarray | None = None) -> np.ndarray:
     """(P, 2) index pairs i < j of neighbouring cells (C, 2): closer than ``link_radius_m``, or seen
     within ``link_azimuth_deg`` of each other from the sensor and less than ``link_radial_m`` apart in
     range. The second kind links the samples of far walls and of walls seen at grazing incidence,
-    which lie a few azimuth steps apart but can be metres apart on the ground.
+    which lie a few azimuth steps apart but can be metres apart on the ground. Two ``columns``
+    ((C,) bool: cells whose returns stand at least ``link_column_m`` high) one azimuth step apart are
+    also neighbours when their ranges differ as on a wall seen up to ``link_grazing_deg`` from
+    head-on (a far wall along the street: one column of returns per azimuth step, metres apart).
     """
-    return _close_pairs(centroids, config.link_radius_m, config)
+    return _close_pairs(centroids, config.link_radius_m, config, columns)
 
 
-def _close_pairs(points: np.ndarray, radius: float, config: VerticalStructureConfig) -> np.ndarray:
+def _close_pairs(points: np.ndarray, radius: float, config: VerticalStructureConfig,
+                 columns: np.ndarray | None = None) -> np.ndarray:
     """(P, 2) index pairs i < j of (K, 2) points closer than ``radius`` or close as seen from the sensor
-    (within ``link_azimuth_deg`` in azimuth and ``link_radial_m`` in range)."""
+    (within ``link_azimuth_deg`` in azimuth and ``link_radial_m`` in range; with ``columns`` (K,)
+    bool, also columns one azimuth step apart, see ``neighbour_pairs``)."""
     from scipy.spatial import cKDTree
 
     near = cKDTree(points).query_pairs(radius, output_type="ndarray")
@@ -287,11 +362,27 @@ def _close_pairs(points: np.ndarray, radius: float, config: VerticalStructureCon
     rng = np.hypot(points[:, 0], points[:, 1])
     unit = points / np.maximum(rng, 1e-9)[:, None] / np.deg2rad(config.link_azimuth_deg)
     angular = cKDTree(np.column_stack([unit, rng / config.link_radial_m])).query_pairs(1.0, output_type="ndarray")
-    apart = np.hypot(*(points[angular[:, 0]] - points[angular[:, 1]]).T) > radius
-    return np.concatenate([near, angular[apart]]).astype(np.int64).reshape(-1, 2)
+    parts = [near, angular[np.hypot(*(points[angular[:, 0]] - points[angular[:, 1]]).T) > radius]]
+    if columns is not None and columns.sum() >= 2 and config.link_grazing_deg > 0 and config.link_azimuth_steps > 0:
+        # Neighbouring azimuth steps on a wall seen up to link_grazing_deg from head-on: their ranges
+        # differ by up to r * step * tan(grazing) (a relative change: log range).
+        step = np.deg2rad(config.link_azimuth_deg / config.link_azimuth_steps)
+        tan = np.tan(np.deg2rad(config.link_grazing_deg))
+        unit_step = unit * (np.deg2rad(config.link_azimuth_deg) / (1.5 * step))
+        col = np.flatnonzero(columns)
+        graze = cKDTree(np.column_stack([unit_step[col], np.log(np.maximum(rng[col], 1e-3)) / (1.5 * step * tan)]
+                                        )).query_pairs(np.sqrt(2.0), output_type="ndarray")
+        graze = col[graze.reshape(-1, 2)]
+        i, j = graze[:, 0], graze[:, 1]
+        dphi = _azimuth_gap(points[i], points[j])
+        dr = np.abs(rng[i] - rng[j])
+        keep = (dphi <= 1.5 * step) & (dr > config.link_radial_m) & (dr <= np.minimum(rng[i], rng[j]) * dphi * tan)
+        parts.append(graze[keep])
+    return np.concatenate(parts).astype(np.int64).reshape(-1, 2)
 
 
-def link_cells(centroids: np.ndarray, weights: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+def link_cells(centroids: np.ndarray, weights: np.ndarray, config: VerticalStructureConfig,
+               columns: np.ndarray | None = None) -> np.ndarray:
     """(C,) line-piece label of each candidate cell (-1: no line through it).
 
     Each cell's direction is the dominant direction towards its neighbours (a weighted vote over
@@ -302,7 +393,7 @@ def link_cells(centroids: np.ndarray, weights: np.ndarray, config: VerticalStruc
     from scipy.sparse.csgraph import connected_components
 
     n = len(centroids)
-    pairs = neighbour_pairs(centroids, config)
+    pairs = neighbour_pairs(centroids, config, columns)
     if n < 2 or len(pairs) == 0:
         return np.full(n, -1)
     p, q = pairs[:, 0], pairs[:, 1]
@@ -317,9 +408,13 @@ def link_cells(centroids: np.ndarray, weights: np.ndarray, config: VerticalStruc
     normal = np.column_stack([-np.sin(theta), np.cos(theta)])
     # Refine each direction by a weighted principal axis of the neighbours on its dominant line
     # (moments about the cell itself; a pair seen from its other end has the opposite offset).
+    # (The voted direction is a bin's centre: a far neighbour, linked as seen from the sensor, may
+    # lie |d| sin(bin) off its line.)
     tol = config.line_tolerance_m
-    at_p = np.abs(d[:, 0] * normal[p, 0] + d[:, 1] * normal[p, 1]) <= tol
-    at_q = np.abs(d[:, 0] * normal[q, 0] + d[:, 1] * normal[q, 1]) <= tol
+    dist = np.hypot(d[:, 0], d[:, 1])
+    reach = tol + np.where(dist > config.link_radius_m, dist * np.sin(np.pi / bins), 0.0)
+    at_p = np.abs(d[:, 0] * normal[p, 0] + d[:, 1] * normal[p, 1]) <= reach
+    at_q = np.abs(d[:, 0] * normal[q, 0] + d[:, 1] * normal[q, 1]) <= reach
     owner = np.concatenate([p[at_p], q[at_q]])
     w = np.concatenate([weights[q[at_p]], weights[p[at_q]]])
     dd = np.concatenate([d[at_p], -d[at_q]])
@@ -445,6 +540,126 @@ def merge_collinear(cells: Cells, members: np.ndarray, piece: np.ndarray, config
     return merged[piece]
 
 
+# --- levelling ----------------------------------------------------------------------------------------
+
+LEAN_BAND_M = 2.0
+"""The lean of the walls is measured on returns at most this far above or below the sensor (metres),
+where a tilt of a few degrees shifts a wall by less than a cell."""
+LEAN_POINTS = 30000
+"""About this many returns are enough to measure the lean (denser scans are thinned for it)."""
+LEAN_MAX_RESIDUAL = 0.02
+"""A piece whose lean differs from the common one by more than this (metres per metre) is left out."""
+
+
+def wall_lean(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.ndarray,
+              config: VerticalStructureConfig, min_points: int = 30) -> np.ndarray:
+    """(2,) the horizontal lean ``g`` of the world's vertical in the (N, 3) points' frame (metres of x, y
+    per metre of z), measured from the lean of line pieces (``label`` per cell of ``cells``, -1 = none).
+
+    A wall is vertical in the world; in the frame of a sensor that pitches and rolls with the road its
+    returns drift sideways with height: the offset from the piece's line grows by ``n . g`` per metre
+    (``n`` its normal). Every piece with >= ``min_points`` returns (``line_min_height_m`` up) spread over at least
+    0.5 m of height (standard deviation), 2 m long and straight once its lean is taken out (rms
+    <= 5 cm) gives one such equation; ``g`` is their least-squares solution weighted by each piece's
+    height spread, refitted twice without the pieces that disagree by more than ``LEAN_MAX_RESIDUAL``
+    (clutter), and damped where the pieces do not constrain it (walls of one direction only: the
+    lean along them moves nothing). At most ``MAX_TILT_DEG``. Zero when no piece qualifies.
+    """
+    point_piece = np.where(cells.point_cell >= 0, label[np.maximum(cells.point_cell, 0)], -1)
+    member = np.flatnonzero((point_piece >= 0) & (height >= config.line_min_height_m))
+    if len(member) == 0:
+        return np.zeros(2)
+    _, piece = np.unique(point_piece[member], return_inverse=True)
+    n = int(piece.max()) + 1
+    pts = xyz[member]
+    count = np.bincount(piece, minlength=n).astype(float)
+    safe = np.maximum(count, 1)
+    mean = np.column_stack([np.bincount(piece, pts[:, i], n) for i in range(3)]) / safe[:, None]
+    d = pts - mean[piece]
+    theta = 0.5 * np.arctan2(2 * np.bincount(piece, d[:, 0] * d[:, 1], n), np.bincount(piece, d[:, 0] ** 2 - d[:, 1] ** 2, n))
+    normal = np.column_stack([-np.sin(theta), np.cos(theta)])
+    offset = d[:, 0] * normal[piece, 0] + d[:, 1] * normal[piece, 1]
+    along = d[:, 0] * -normal[piece, 1] + d[:, 1] * normal[piece, 0]
+    szz = np.bincount(piece, d[:, 2] ** 2, n)
+    slope = np.bincount(piece, offset * d[:, 2], n) / np.maximum(szz, 1e-9)
+    rest = np.bincount(piece, (offset - slope[piece] * d[:, 2]) ** 2, n) / safe
+    t_min = np.full(n, np.inf)
+    t_max = np.full(n, -np.inf)
+    np.minimum.at(t_min, piece, along)
+    np.maximum.at(t_max, piece, along)
+    ok = (count >= min_points) & (szz / safe >= 0.25) & (t_max - t_min >= 2.0) & (rest <= 0.05 ** 2)
+    if not ok.any():
+        return np.zeros(2)
+    nrm, s, w = normal[ok], slope[ok], szz[ok]
+    g = np.zeros(2)
+    for _ in range(3):
+        A = (nrm * w[:, None]).T @ nrm
+        A += np.eye(2) * (1e-3 * np.trace(A) + 1e-9)
+        g = np.linalg.solve(A, (nrm * (w * s)[:, None]).sum(0))
+        agree = np.abs(s - nrm @ g) <= LEAN_MAX_RESIDUAL
+        if not agree.any():
+            return np.zeros(2)
+        w = np.where(agree, w, 0.0)
+    limit = np.tan(np.deg2rad(MAX_TILT_DEG))
+    norm = float(np.hypot(*g))
+    return g * min(1.0, limit / norm) if norm > 0 else g
+
+
+def scan_lean(xyz: np.ndarray, height: np.ndarray, tan_top: float, step: float | None,
+              config: VerticalStructureConfig) -> np.ndarray:
+    """(2,) the lean of the world's vertical in the frame of (N, 3) non-ground returns (``height`` (N,)
+    above the local ground; ``step`` the scan's azimuth step in degrees, or None): ``wall_lean`` of
+    the groups of linked cells (step 5) among the returns within ``LEAN_BAND_M`` of the sensor's height. Dense scans
+    are thinned to about ``LEAN_POINTS`` returns by keeping every k-th azimuth step (the links reach
+    k times as far), which leaves the walls' lean measurable at a fraction of the cost."""
+    band = np.flatnonzero(np.abs(xyz[:, 2]) <= LEAN_BAND_M)
+    k = int(np.ceil(len(band) / LEAN_POINTS))
+    if k > 1 and step is not None:
+        az_bin = np.floor((np.arctan2(xyz[band, 1], xyz[band, 0]) + np.pi) / np.deg2rad(step)).astype(np.int64)
+        band = band[az_bin % k == 0]
+        config = config.model_copy(update={"link_azimuth_deg": config.link_azimuth_deg * k})
+    if len(band) < config.min_points:
+        return np.zeros(2)
+    cells = structure_cells(xyz[band], height[band], tan_top, config, lines_only=True)
+    # The groups of linked cells are straight enough to measure a lean: no need to cut them into pieces.
+    label = link_cells(cells.centroid, cells.count, config)
+    return wall_lean(xyz[band], height[band], cells, label, config, min_points=max(10, 30 // k))
+
+
+def level_rotation(g: np.ndarray) -> np.ndarray:
+    """(3, 3) the smallest rotation that turns the leaning vertical (g_x, g_y, 1) into the z axis."""
+    up = np.array([g[0], g[1], 1.0]) / np.sqrt(1.0 + g[0] ** 2 + g[1] ** 2)
+    axis = np.array([up[1], -up[0], 0.0])              # up x e_z
+    s, c = float(np.hypot(*axis[:2])), float(up[2])
+    if s < 1e-12:
+        return np.eye(3)
+    k = axis / s
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + s * K + (1 - c) * K @ K
+
+
+def unlevel_segments(result: ScanSegments, R: np.ndarray) -> ScanSegments:
+    """Segments found in the levelled frame ``R @ sensor`` (``R`` (3, 3)) back in the sensor frame.
+
+    Each wall is a vertical plane of the levelled frame; its line is given where that plane cuts the
+    sensor's horizontal plane at the height of the segment's middle, so ``segments_to_world`` (which
+    lifts both ends to ``z_mean``) puts it back on the wall exactly.
+    """
+    support = result.support_points
+    if support is not None:
+        support = (np.column_stack([support, np.zeros(len(support))]) @ R)[:, :2]
+    if len(result) == 0:
+        return replace(result, support_points=support)
+    seg = result.segments
+    up = R.T[:, 2]                                      # the levelled z axis in the sensor frame
+    ends = [np.column_stack([seg[:, 2 * k], seg[:, 2 * k + 1], result.z_mean]) @ R for k in (0, 1)]
+    z = 0.5 * (ends[0][:, 2] + ends[1][:, 2])
+    moved = [e + ((z - e[:, 2]) / up[2])[:, None] * up for e in ends]
+    shift = z - result.z_mean
+    return replace(result, segments=np.column_stack([moved[0][:, :2], moved[1][:, :2]]), z_mean=z,
+                   z_min=result.z_min + shift, z_max=result.z_max + shift, support_points=support)
+
+
 # --- stage 6: walls -------------------------------------------------------------------------------------
 
 def azimuth_step_deg(xyz: np.ndarray) -> float | None:
@@ -497,6 +712,18 @@ def top_beam_tangent(xyz: np.ndarray, config: VerticalStructureConfig) -> float:
     return float(np.quantile(xyz[far, 2] / rng[far], config.top_beam_quantile))
 
 
+def top_beam_reach_from(xyz: np.ndarray, height: np.ndarray, tan_top: float, config: VerticalStructureConfig) -> float:
+    """Range (metres) from which the scan's top beam passes ``reach_min_m`` above the ground under the
+    sensor (the median of z - height of the (N, 3) returns within 10 m), so that reaching it says a
+    structure is taller than a car; 0 when the ground near the sensor is not seen or the top beam
+    points down."""
+    near = np.hypot(xyz[:, 0], xyz[:, 1]) <= 10.0
+    if near.sum() < 10 or not np.isfinite(tan_top) or tan_top <= 0:
+        return 0.0
+    sensor_height = -float(np.median(xyz[near, 2] - height[near]))
+    return max(0.0, (config.reach_min_m - sensor_height) / tan_top)
+
+
 def _group_median(group: np.ndarray, value: np.ndarray, n: int) -> np.ndarray:
     """(n,) median (the upper one of an even count) of ``value`` per ``group`` label; nan for empty groups."""
     order = np.lexsort((value, group))
@@ -514,7 +741,9 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     Heights are judged along the piece, in ``COLUMN_M`` columns: its top is the median of its columns'
     highest points, and it reaches the top beam when at least half of its columns do (within
     ``envelope_margin_m`` or ``envelope_margin_deg``), so a tree crown hanging over a fence does not
-    make the fence a wall.
+    make the fence a wall; columns whose top is hidden by something in front count for neither.
+    Long pieces (``solid_length_m``) may float, and may be seen over a narrow band when they reach
+    the top beam; shorter ones must reach down near the ground (see the module docstring).
     """
     out = np.full(len(cells), -1)
     members = np.flatnonzero(label >= 0)
@@ -534,18 +763,33 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     np.maximum.at(col_top, col, cells.top[members])
     reaching = np.zeros(n_col, bool)
     np.logical_or.at(reaching, col, cells.reaches_top[members])
-    top = _group_median(col_piece, col_top, n)
-    reaches_top = np.bincount(col_piece, reaching, n) >= 0.5 * np.bincount(col_piece, minlength=n)
+    hidden = np.ones(n_col, bool)
+    np.logical_and.at(hidden, col, cells.hidden_above[members])
+    # The piece's top: the median of its columns' tops, over the columns whose top is seen (a tree
+    # crown over a fence does not lift it; one in front of a wall does not lower it).
+    seen_col = ~hidden | reaching
+    top = _group_median(col_piece[seen_col], col_top[seen_col], n)
+    top = np.where(np.isnan(top), _group_median(col_piece, col_top, n), top)
+    # Columns whose top beam stopped in front of them (a tree crown, a van) do not count.
+    seen = np.bincount(col_piece, seen_col, n)
+    reaches_top = (seen > 0) & (np.bincount(col_piece, reaching, n) >= 0.5 * seen)
     bottom = np.full(n, np.inf)
     np.minimum.at(bottom, piece, cells.bottom[members])
-    # How far each cell's lowest return may float: max_bottom_m plus one beam spacing at its range
+    # How far each cell's lowest return floats above the ground, less one beam spacing at its range
     # (a far wall's lowest returns can be a beam apart, and the lowest of them counts as ground).
     spacing = np.hypot(cells.centroid[members, 0], cells.centroid[members, 1]) * np.tan(np.deg2rad(config.elevation_step_deg))
     floats = np.full(n, np.inf)
     np.minimum.at(floats, piece, cells.bottom[members] - spacing)
     length = np.hypot(*(b - a).T)
-    ok = (count >= config.min_points) & (length >= config.min_length_m) & (np.sqrt(msd) <= config.max_rms_m)
-    ok &= (top - bottom >= config.min_span_m) & (top >= config.min_top_m) & (floats <= config.max_bottom_m)
+    solid = length >= config.solid_length_m
+    ok = (count >= np.where(solid, config.solid_min_points, config.min_points)) & (length >= config.min_length_m)
+    ok &= np.sqrt(msd) <= config.max_rms_m
+    # A long piece that stops the top beam may be seen over a narrow band (a hedge in front, an
+    # uphill street under the beam): it is higher than the beam there, which is above cars.
+    seen_to_top = solid & reaches_top
+    ok &= top - bottom >= np.where(seen_to_top, config.solid_min_span_m, config.min_span_m)
+    ok &= top >= np.where(seen_to_top, config.cell_min_top_m, config.min_top_m)
+    ok &= floats <= np.where(solid, np.inf, config.short_max_bottom_m)
     ok &= reaches_top | (top >= config.tall_m) | ((length >= config.long_m) & (top >= config.long_min_top_m))
     out[members] = np.where(ok[piece], piece, -1)
     return out
@@ -582,7 +826,7 @@ class PieceMeasures:
 
 
 def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.ndarray,
-                   config: VerticalStructureConfig) -> PieceMeasures | None:
+                   config: VerticalStructureConfig, max_lean_deg: float = None) -> PieceMeasures | None:
     """Measures of the pieces (``label`` per cell, -1 = none) from the (M, 3) non-ground points ``xyz``
     (``height`` (M,) above the ground) that ``cells`` was made of. Only points at least
     ``line_min_height_m`` up and within ``inlier_tolerance_m`` of the piece's line (refitted once
@@ -603,7 +847,8 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
         dx, dy = pts[:, 0] - mean[piece, 0], pts[:, 1] - mean[piece, 1]
         theta = 0.5 * np.arctan2(2 * np.bincount(piece, dx * dy, n), np.bincount(piece, dx * dx - dy * dy, n))
         u = np.column_stack([np.cos(theta), np.sin(theta)])
-        offset = _untilted(dx * u[piece, 1] - dy * u[piece, 0], pts[:, 2], piece, n)
+        offset = _untilted(dx * u[piece, 1] - dy * u[piece, 0], pts[:, 2], piece, n,
+                           MAX_TILT_DEG if max_lean_deg is None else max_lean_deg)
         keep = np.abs(offset) <= config.inlier_tolerance_m
         member, piece = member[keep], piece[keep]
         if len(member) == 0:
@@ -645,7 +890,7 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
                          behind=_points_behind(cells, a, b, config) / safe)
 
 
-def _untilted(offset: np.ndarray, z: np.ndarray, piece: np.ndarray, n: int) -> np.ndarray:
+def _untilted(offset: np.ndarray, z: np.ndarray, piece: np.ndarray, n: int, max_deg: float = MAX_TILT_DEG) -> np.ndarray:
     """Offsets (K,) from a piece's line minus their linear trend with height (at most ``MAX_TILT_DEG``).
 
     A wall is vertical in the world, not in the sensor's frame when the vehicle pitches or rolls:
@@ -655,7 +900,7 @@ def _untilted(offset: np.ndarray, z: np.ndarray, piece: np.ndarray, n: int) -> n
     count = np.maximum(np.bincount(piece, minlength=n), 1)
     dz = z - (np.bincount(piece, z, n) / count)[piece]
     slope = np.bincount(piece, offset * dz, n) / np.maximum(np.bincount(piece, dz * dz, n), 1e-9)
-    limit = np.tan(np.deg2rad(MAX_TILT_DEG))
+    limit = np.tan(np.deg2rad(max_deg))
     return offset - np.clip(slope, -limit, limit)[piece] * dz
 
 
@@ -683,12 +928,23 @@ def _points_behind(cells: Cells, a: np.ndarray, b: np.ndarray, config: VerticalS
 
 
 def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfig) -> ScanSegments:
-    """The pieces that pass the final tests (returns, length, spread, thinness, opacity) as segments."""
+    """The pieces that pass the final tests (returns, length, spread, thinness, opacity, not seen
+    edge-on, spread against the scan's long walls) as segments (in the frame of ``measures``)."""
     if measures is None:
         return ScanSegments.empty()
     m = measures
-    wall = (m.count >= config.min_points) & (m.length >= config.min_length_m) & (m.rms <= config.max_rms_m)
-    wall &= (m.core >= config.min_core_fraction) & (m.behind <= config.max_behind)
+    solid = m.length >= config.solid_length_m
+    wall = (m.count >= np.where(solid, config.solid_min_points, config.min_points)) & (m.length >= config.min_length_m)
+    wall &= m.rms <= config.max_rms_m
+    wall &= m.core >= config.min_core_fraction
+    wall &= m.behind <= config.max_behind
+    mid = (m.a + m.b) / 2
+    along_ray = np.abs(((m.b - m.a) * mid).sum(1)) / np.maximum(m.length * np.hypot(mid[:, 0], mid[:, 1]), 1e-9)
+    wall &= along_ray <= np.sin(np.deg2rad(config.max_incidence_deg))
+    # A piece must be about as thin as this scan's long walls are (their spread is the sensor's noise).
+    if (wall & solid).sum() >= 3:
+        typical = float(np.median(m.rms[wall & solid]))
+        wall &= m.rms <= np.where(solid, config.solid_rms_factor, config.short_rms_factor) * typical
     sel = np.flatnonzero(wall)
     if len(sel) == 0:
         return ScanSegments.empty()
@@ -723,6 +979,7 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
         return ScanSegments.empty()
     height = heights_above_local_ground(xyz, config)
     tan_top = top_beam_tangent(xyz, config)
+    reach_from = top_beam_reach_from(xyz, height, tan_top, config)
     step = azimuth_step_deg(xyz) if config.link_azimuth_steps > 0 else None
     if step is not None:                       # later stages see the scan's own sampling
         update = {"link_azimuth_deg": config.link_azimuth_steps * step}
@@ -735,17 +992,29 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
     xyz, height = xyz[above], height[above]
     if len(xyz) < config.min_points:
         return ScanSegments.empty()
-    cells = structure_cells(xyz, height, tan_top, config)
+    sensor_xyz, R = xyz, None
+    if config.level:
+        g = scan_lean(xyz, height, tan_top, step, config)
+        if np.hypot(*g) > 1e-4:
+            R = level_rotation(g)
+            # (Sums of products, not a matrix product: BLAS threads would spin on a busy machine.)
+            xyz = sensor_xyz[:, :1] * R[:, 0] + sensor_xyz[:, 1:2] * R[:, 1] + sensor_xyz[:, 2:] * R[:, 2]
+        clock.lap("level")
+    cells = structure_cells(xyz, height, tan_top, config, sensor_xyz, reach_from)
     clock.lap("cells")
-    group = link_cells(cells.centroid, cells.count, config)
+    group = link_cells(cells.centroid, cells.count, config, cells.top - cells.bottom >= config.link_column_m)
     clock.lap("lines")
     label = cell_pieces(cells, group, config)
     clock.lap("pieces")
     label = tall_pieces(cells, label, config)
-    result = wall_segments(piece_measures(xyz, height, cells, label, config), config)
+    lean = config.max_lean_deg if R is not None else None
+    result = wall_segments(piece_measures(xyz, height, cells, label, config, lean), config)
+    result = replace(result, support_points=cells.centroid)
+    if R is not None:
+        result = unlevel_segments(result, R)
     clock.lap("walls")
-    return replace(result, support_points=cells.centroid)
+    return result
 
 
 EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,
-                      extract=extract_vertical_structure, version=1)
+                      extract=extract_vertical_structure, version=2)

@@ -54,8 +54,8 @@ class FusionMethod:
         config_type: the method's config section (a :class:`featmap.config.Section`).
         fuse: ``fuse(segments (N, 4) world frame, scan (N,), config, progress=None) -> FusionResult`` (before
             corner optimisation); ``progress(done, total)`` is called now and then by long fusions.
-        support_rule: ``config -> (min_support, min_support_length_m)`` for a method that drops small clusters
-            (refinement applies the same rule to the features it makes); None: every cluster is kept.
+        support_rule: ``config -> SupportRule`` for a method that drops small clusters (refinement
+            applies the same rule to the features it makes); None: every cluster is kept.
         prepare: imports the method's heavy libraries and loads its compiled code, so that callers can keep
             that one-off cost out of fusion timings.
     """
@@ -66,8 +66,30 @@ class FusionMethod:
     linestyle: str
     config_type: type[Section]
     fuse: Callable[[np.ndarray, np.ndarray, Any], "FusionResult"]
-    support_rule: Callable[[Any], tuple[int, Optional[float]]] | None = None
+    support_rule: Callable[[Any], "SupportRule"] | None = None
     prepare: Callable[[], None] = lambda: None
+
+
+@dataclass(frozen=True)
+class SupportRule:
+    """Which clusters a support filter keeps: those with at least ``min_support`` members, and, when
+    ``min_length_m`` is set, smaller ones whose members cover at least that length of their line
+    (a single member only when it covers ``min_single_length_m``, if set: one view is weaker
+    evidence than two that agree)."""
+
+    min_support: int = 1
+    min_length_m: Optional[float] = None
+    min_single_length_m: Optional[float] = None
+
+    def keep(self, members: np.ndarray, covered: Callable[[], np.ndarray]) -> np.ndarray:
+        """(C,) kept clusters from their (C,) member counts; ``covered()`` gives each one's covered
+        length (C,) (called only when the length rule is needed)."""
+        kept = members >= self.min_support
+        if self.min_length_m is not None and not kept.all():
+            length = covered()
+            single = self.min_length_m if self.min_single_length_m is None else self.min_single_length_m
+            kept |= (length >= self.min_length_m) & ((members >= 2) | (length >= single))
+        return kept
 
 
 def validate_input(segments, scan) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

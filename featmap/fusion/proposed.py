@@ -9,7 +9,8 @@ Two segments extracted in *different* scans are linked when all three criteria h
 
 Clusters are the connected groups of linked segments (what the paper's sequential labelling of
 Section 3.2 produces); clusters with fewer than ``min_support`` members are dropped (unless, with
-``min_support_length_m``, their members cover that much of one line); each remaining
+``min_support_length_m``, their members cover that much of one line, and a lone segment
+``min_single_length_m``); each remaining
 cluster becomes the total-least-squares line through its members' endpoints, cut at the extreme
 projections of those endpoints.
 
@@ -30,8 +31,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from featmap.config import Section
-from featmap.fusion.base import (TINY_INPUT, FusionMethod, FusionResult, fit_clusters, relabel_by_first_appearance,
-                                 validate_input)
+from featmap.fusion.base import (TINY_INPUT, FusionMethod, FusionResult, SupportRule, fit_clusters,
+                                 relabel_by_first_appearance, validate_input)
 from featmap.fusion.gaps import observed_length
 from featmap.geometry import (circle_overlap_area, included_angle, line_coefficients, point_segment_distance,
                               segment_lengths, segment_midpoints)
@@ -46,7 +47,8 @@ class ProposedConfig(Section):
     gamma: float = Field(0.3, ge=0, le=1, description="criterion 2: min feature-circle overlap S_overlap/S_min")
     eta_m: float = Field(0.5, ge=0, description="criterion 3: max relative distance d_max")
     min_support: int = Field(4, ge=1, description="drop clusters with fewer member segments")
-    min_support_length_m: Optional[float] = Field(5.0, ge=0, description="also keep smaller clusters whose members cover at least this length of their line (null = the paper's count rule only)")
+    min_support_length_m: Optional[float] = Field(3.0, ge=0, description="also keep smaller clusters whose members cover at least this length of their line (null = the paper's count rule only) ...")
+    min_single_length_m: Optional[float] = Field(5.0, ge=0, description="... a single segment only if it covers this much (one view is weaker evidence than two that agree; null = min_support_length_m)")
     fit_weighting: Literal["length", "none"] = Field("length", description="weight of each member's endpoints in the TLS fit")
 
 
@@ -231,13 +233,13 @@ def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig(),
         return FusionResult(empty, np.zeros(0, np.int64), labels, empty, 0, int((~valid).sum()))
     i, j = linked_pairs(seg, sc, config, progress)
     groups, sizes = cluster_segments(len(seg), i, j, sc, seg)
-    kept = sizes >= config.min_support
-    if config.min_support_length_m is not None and not kept.all():
+    def covered() -> np.ndarray:
         # Few views of a wall still make it a wall when they cover enough of one line.
-        small = ~kept[groups]
+        small = sizes[groups] < config.min_support
         lines = fit_clusters(seg, groups, len(sizes), segment_lengths(seg))
-        covered = observed_length(lines, seg, np.where(small, groups, -1))
-        kept |= covered >= config.min_support_length_m
+        return observed_length(lines, seg, np.where(small, groups, -1))
+
+    kept = support_rule(config).keep(sizes, covered)
     new_id = np.full(len(sizes), -1, dtype=np.int64)
     new_id[kept] = np.arange(kept.sum())
     sub_labels = new_id[groups]
@@ -250,7 +252,12 @@ def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig(),
                         extras={"links_kept": int(len(i))})
 
 
+def support_rule(config: ProposedConfig) -> SupportRule:
+    """The support filter of the proposed method's config."""
+    return SupportRule(config.min_support, config.min_support_length_m, config.min_single_length_m)
+
+
 METHOD = FusionMethod(name="proposed", title="Proposed (three criteria)", color="#d62728", linestyle="-",
                       config_type=ProposedConfig, fuse=fuse_proposed,
-                      support_rule=lambda config: (config.min_support, config.min_support_length_m),
+                      support_rule=support_rule,
                       prepare=lambda: fuse_proposed(*TINY_INPUT))

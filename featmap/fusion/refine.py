@@ -31,7 +31,7 @@ from pydantic import Field
 from scipy.spatial import cKDTree
 
 from featmap.config import Section
-from featmap.fusion.base import FusionResult, fit_clusters, relabel_by_first_appearance, validate_input
+from featmap.fusion.base import FusionResult, SupportRule, fit_clusters, relabel_by_first_appearance, validate_input
 from featmap.fusion.gaps import observed_length, split_at_gaps
 from featmap.geometry import segment_lengths
 
@@ -39,9 +39,9 @@ from featmap.geometry import segment_lengths
 class RefineConfig(Section):
     """Shared clean-up after every method, before corners: split and merge clusters so that each feature is one straight wall, cut features at unobserved gaps (featmap.fusion.refine)."""
 
-    max_offset_m: float = Field(0.0, ge=0, description="split clusters whose member endpoints lie farther than this from their line; merge clusters that one line explains within it (0 = off)")
+    max_offset_m: float = Field(0.15, ge=0, description="split clusters whose member endpoints lie farther than this from their line; merge clusters that one line explains within it (0 = off)")
     merge_angle_deg: float = Field(5.0, ge=0, le=90, description="merge only features within this angle of parallel")
-    merge_gap_m: float = Field(0.5, ge=0, description="merge only features that overlap or leave at most this gap along their line")
+    merge_gap_m: float = Field(1.0, ge=0, description="merge only features that overlap or leave at most this gap along their line")
     absorb_dropped: bool = Field(True, description="segments dropped by a support filter join a feature they lie on")
     split_gap_m: float = Field(0.0, ge=0, description="cut features where no member covers this much of their line, e.g. doorways (0 = off)")
 
@@ -316,16 +316,16 @@ def join_bends(fused: np.ndarray, first: np.ndarray, second: np.ndarray) -> tupl
     return out, joined
 
 
-def refine(result: FusionResult, segments, scan, config: RefineConfig, min_support: int = 1,
-           min_support_length_m: float | None = None) -> FusionResult:
+def refine(result: FusionResult, segments, scan, config: RefineConfig,
+           rule: SupportRule = SupportRule()) -> FusionResult:
     """Apply the enabled refinement steps to one method's result (see the module docstring).
 
     Args:
         result: the method's FusionResult (its labels tie input segments to features).
         segments: (N, 4) the method's world-frame input; scan: (N,) scan of each segment.
         config: ``max_offset_m = 0`` turns split and merge off; ``split_gap_m = 0`` the gap split.
-        min_support, min_support_length_m: the method's support rule, applied again to the refined
-            features (a piece split off a cluster must earn its place like any cluster).
+        rule: the method's support rule, applied again to the refined features (a piece split off a
+            cluster must earn its place like any cluster).
     Returns:
         A FusionResult whose segments, support, labels and segments_before_corners describe the
         refined features (corner optimisation still to come); ``extras["refine"]`` counts the changes.
@@ -373,11 +373,9 @@ def refine(result: FusionResult, segments, scan, config: RefineConfig, min_suppo
     if len(bends) and len(fused):
         fused, stats["bends_joined"] = join_bends(fused, labels[bends[:, 0]], labels[bends[:, 1]])
 
-    if min_support > 1 and len(fused):
-        support = np.bincount(labels[labels >= 0], minlength=len(fused))
-        keep = support >= min_support
-        if min_support_length_m is not None:
-            keep |= observed_length(fused, segments, labels) >= min_support_length_m
+    if rule.min_support > 1 and len(fused):
+        members = np.bincount(labels[labels >= 0], minlength=len(fused))
+        keep = rule.keep(members, lambda: observed_length(fused, segments, labels))
         stats["dropped"] = int((~keep).sum())
         remap = np.full(len(fused), -1, dtype=np.int64)
         remap[keep] = np.arange(keep.sum())

@@ -20,7 +20,7 @@ from pydantic import create_model
 from featmap.config import Section
 from featmap.errors import ConfigError
 from featmap.fusion import density, meanshift, proposed
-from featmap.fusion.base import FusionMethod, FusionResult
+from featmap.fusion.base import FusionMethod, FusionResult, SupportRule
 from featmap.fusion.corners import CornerConfig, optimise_corners
 from featmap.fusion.refine import RefineConfig, refine
 from featmap.geometry import as_segments
@@ -97,8 +97,8 @@ def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig(),  # ty
     shift = np.tile(origin, 2)
     section = getattr(config, name)
     result = method.fuse(segments - shift, scan, section, progress=progress)
-    min_support, min_length = method.support_rule(section) if method.support_rule else (1, None)
-    result = refine(result, segments - shift, scan, config.refine, min_support, min_length)
+    rule = method.support_rule(section) if method.support_rule else SupportRule()
+    result = refine(result, segments - shift, scan, config.refine, rule)
     before = result.segments_before_corners
     after = optimise_corners(before, config.corners)
     if not origin.any():

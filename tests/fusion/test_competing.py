@@ -7,7 +7,7 @@ from featmap.fusion import FusionConfig, fuse
 from featmap.fusion.base import cluster_orientations, orientation_embedding
 from featmap.fusion.density import DensityConfig, fuse_density
 from featmap.fusion.meanshift import MeanShiftConfig, fuse_meanshift
-from featmap.fusion.proposed import fuse_proposed
+from featmap.fusion.proposed import ProposedConfig, fuse_proposed
 from featmap.simulation.segments import observe_walls
 
 
@@ -71,14 +71,15 @@ def test_large_bandwidth_merges_the_two_sides_of_a_street_but_the_proposed_metho
 def test_competing_methods_keep_every_cluster():
     # no support filter: a fence seen twice, 1.5 m in front of a wall. Density clustering keeps it as a
     # feature of its own; mean shift (3 m bandwidth) merges it into a wall cluster and drags that feature
-    # off the wall (the paper's Figure 5); the proposed method drops it (support 2 < 4) and keeps the wall.
+    # off the wall (the paper's Figure 5); the proposed method with the paper's count rule drops it
+    # (support 2 < 4) and keeps the wall.
     rng = np.random.default_rng(4)
     segs, scan = observe_walls(np.array([0.0, 0.0, 40.0, 0.0]), 20, 0.03, rng)
     segs = np.vstack([segs, [[15.0, 1.5, 19.0, 1.5], [15.1, 1.52, 19.1, 1.5]]])
     scan = np.concatenate([scan, [3, 4]])
     fence = [len(segs) - 2, len(segs) - 1]
 
-    proposed = fuse_proposed(segs, scan)
+    proposed = fuse_proposed(segs, scan, ProposedConfig(min_support_length_m=None))
     assert len(proposed.segments) == 1 and np.abs(proposed.segments[0, [1, 3]]).max() < 0.05
     assert (proposed.labels[fence] == -1).all()
 

@@ -50,10 +50,24 @@ def test_short_fence_in_two_scans_is_dropped_and_does_not_pull_the_wall():
     fence = np.array([[15.0, 1.5, 19.0, 1.5], [15.2, 1.55, 19.1, 1.52]])   # 1.5 m in front of the wall
     segs = np.vstack([segs, fence])
     scan = np.concatenate([scan, [3, 4]])
-    result = fuse_proposed(segs, scan, ProposedConfig(min_support=4, eta_m=0.5))
+    result = fuse_proposed(segs, scan, ProposedConfig(min_support=4, eta_m=0.5, min_support_length_m=None))
     assert len(result.segments) == 1
     assert (result.labels[-2:] == -1).all()
     assert np.abs(result.segments[0, [1, 3]]).max() < 0.05
+    # with the length rule, two views that agree over 4 m are a feature of their own; the wall stays put
+    result = fuse_proposed(segs, scan, ProposedConfig(min_support=4, eta_m=0.5))
+    assert len(result.segments) == 2
+    assert np.abs(result.segments[result.labels[0], [1, 3]]).max() < 0.05
+
+
+@pytest.mark.parametrize("scans,length,kept", [([0], 4.0, False), ([0], 6.0, True), ([0, 1], 4.0, True),
+                                               ([0, 1], 2.5, False), ([0, 1, 2, 3], 1.0, True)])
+def test_small_clusters_are_kept_by_length_a_single_view_only_when_long(scans, length, kept):
+    """min_support 4; smaller clusters stay when their members cover min_support_length_m (3 m), a lone
+    segment only when it covers min_single_length_m (5 m)."""
+    segs = np.array([[0.0, 0.01 * k, length, 0.01 * k] for k in range(len(scans))])
+    result = fuse_proposed(segs, np.array(scans), ProposedConfig())
+    assert (len(result.segments) == 1) == kept
 
 
 @pytest.mark.parametrize("wall", [[7.0, -10.0, 7.0, 20.0], [-10.0, 4.0, 25.0, 4.0]])

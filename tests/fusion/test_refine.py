@@ -178,4 +178,4 @@ def test_refine_off_changes_nothing():
     rng = np.random.default_rng(8)
     segs, scan = observe_walls(np.array([0.0, 0.0, 10.0, 0.0]), 10, 0.02, rng)
     result = fuse("proposed", segs, scan)
-    assert refine(result, segs, scan, RefineConfig()) is result
+    assert refine(result, segs, scan, RefineConfig(max_offset_m=0.0, split_gap_m=0.0)) is result

@@ -55,8 +55,9 @@ def test_every_method_takes_its_own_section(name):
     segs = np.array([[0, 0, 20, 0], [0, 0, 20, 20 * np.tan(np.deg2rad(1.5))]] * 4, float)
     scan = np.arange(len(segs))
     key = {"proposed": "delta_deg", "meanshift": "orientation_bandwidth_deg", "density": "orientation_bandwidth_deg"}[name]
-    tight = FusionConfig.model_validate({name: {key: 0.5, **({"min_support": 1} if name == "proposed" else {})}})
-    loose = FusionConfig.model_validate({name: {key: 10.0, **({"min_support": 1} if name == "proposed" else {})}})
+    off = {"refine": {"max_offset_m": 0.0}}          # (refinement would split the 10 deg cluster again)
+    tight = FusionConfig.model_validate({name: {key: 0.5, **({"min_support": 1} if name == "proposed" else {})}, **off})
+    loose = FusionConfig.model_validate({name: {key: 10.0, **({"min_support": 1} if name == "proposed" else {})}, **off})
     assert len(fuse(name, segs, scan, tight)) == 2
     assert len(fuse(name, segs, scan, loose)) == 1
 
