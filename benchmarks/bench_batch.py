@@ -29,6 +29,7 @@ united, in the first drive's frame).
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import statistics
 import tempfile
@@ -98,6 +99,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--frames", default=None, help="a frame selection of every drive (default: all)")
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--docs", action="store_true", help="write the tables into docs/batch.md (blocks batch_bench_<k>)")
     args = parser.parse_args()
 
     from featmap.batch import merge_task
@@ -143,10 +145,13 @@ def main() -> None:
                           f"{s.critical_path_seconds:.1f}" if s else "",
                           f"{s.work_seconds / s.critical_path_seconds:.2f}" if s else "")
         console.print(table)
+        tables = [table]
         one = [n for n in times if n.startswith("batch, 1 ")]
         two = [n for n in times if n.startswith("batch, 2 ")]
+        scaling = ""
         if one and two:
-            console.print(f"scaling 1 -> 2 workers: {statistics.median(times[one[0]]) / statistics.median(times[two[0]]):.2f}x")
+            scaling = f"scaling 1 -> 2 workers: {statistics.median(times[one[0]]) / statistics.median(times[two[0]]):.2f}x"
+            console.print(scaling)
         if two:
             res = last[two[0]]
             drives = Table(title="per drive (2-worker batch)")
@@ -156,6 +161,7 @@ def main() -> None:
                 drives.add_row(d.name, str(d.scans), str(d.segments), str(d.counts.get("proposed")), f"{d.seconds:.1f}",
                                f"{d.simulation_seconds:.1f}", d.worker or "")
             console.print(drives)
+            tables.append(drives)
             out = Path(res.summary.drives[0].run_dir).parent
             pair = [(d.name, d.run_dir) for d in res.summary.drives if d.name in ("residential", "residential_reverse")]
             config = load_config(None, SETTINGS).model_dump(mode="json")
@@ -174,6 +180,19 @@ def main() -> None:
                                f"{sc.get('precision', 0):.3f}", f"{sc.get('recall', 0):.3f}",
                                f"{sc.get('redundancy', 0):.2f}", alone)
             console.print(mt)
+            tables.append(mt)
+        if args.docs:
+            import platform
+            import sys
+
+            sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+            from doc_blocks import write_tables
+
+            load = os.getloadavg()[0]
+            write_tables(Path(__file__).resolve().parents[1] / "docs" / "batch.md", "batch_bench", tables,
+                         f"`.venv/bin/python benchmarks/bench_batch.py --docs` ({time.strftime('%Y-%m-%d')}, "
+                         f"{platform.machine()}, {os.cpu_count()} cores, load {load:.1f} at the end); {scaling}")
+            console.print("wrote the tables into docs/batch.md")
 
 
 if __name__ == "__main__":

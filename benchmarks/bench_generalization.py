@@ -1,7 +1,7 @@
 """Generalization benchmark: per-scan extraction and fused maps on procedurally generated worlds.
 
     .venv/bin/python benchmarks/bench_generalization.py [--split tuning|heldout] [--seeds S ...]
-        [--frames a:b:c] [--extractor module:function] [--workers 2] [--set fusion.key=value ...] [--json FILE]
+        [--frames a:b:c] [--workers 2] [--set key=value ...] [--cache-dir DIR] [--no-cache] [--json FILE] [--docs]
 
 Worlds come from :mod:`featmap.simulation.procedural` (house rows, apartment blocks, courtyards,
 side streets, far walls 50-100 m away, cars, fences, hedges, poles, trees, sloped streets with

@@ -42,6 +42,7 @@ Everything is deterministic; noise seed ``k`` of world ``w`` at level ``l`` draw
 from __future__ import annotations
 
 import argparse
+import platform
 import json
 import os
 import statistics
@@ -403,9 +404,10 @@ def _median(values):
     return statistics.median(values) if values else None
 
 
-def print_sim(rows: list[dict], methods: list[str], console: Console) -> None:
+def print_sim(rows: list[dict], methods: list[str], console: Console) -> list:
+    tables: list = []
     if not rows:
-        return
+        return []
     worlds = sorted({r["world"] for r in rows})
     table = Table(title=f"simulated drives: medians over {len(worlds)} world(s) x {len({r['noise_seed'] for r in rows})} "
                         "noise seed(s); drift 5 s Gauss-Markov; floor = exact map on the drifting GPS mean, "
@@ -427,6 +429,7 @@ def print_sim(rows: list[dict], methods: list[str], console: Console) -> None:
                               _f(traj[1] if traj else None, ".3f"))
         table.add_section()
     console.print(table)
+    tables.append(table)
     table = Table(title="simulated drives, per world (proposed method; medians over noise seeds)")
     for col in ("world", "drift", "scans", "traj m before/after/floor", "precision exact/before/after/floor",
                 "recall exact/before/after", "offset cm before/after/floor", "count exact/after", "applied", "refine s"):
@@ -446,11 +449,14 @@ def print_sim(rows: list[dict], methods: list[str], console: Console) -> None:
                           f"{sum(r['refinement']['applied'] for r in sel)}/{len(sel)}",
                           _f(_median([r["refinement"]["seconds"] for r in sel]), ".1f"))
     console.print(table)
+    tables.append(table)
+    return tables
 
 
-def print_carmen(rows: list[dict], methods: list[str], console: Console) -> None:
+def print_carmen(rows: list[dict], methods: list[str], console: Console) -> list:
+    tables: list = []
     if not rows:
-        return
+        return []
     table = Table(title="CARMEN logs, drift added to the corrected poses (truth-free metric; medians over noise seeds; "
                         "reference = corrected poses, no refinement)")
     for col in ("log", "drift", "method", "poses", "count", "precision", "recall", "redundancy", "traj m", "traj deg",
@@ -470,11 +476,14 @@ def print_carmen(rows: list[dict], methods: list[str], console: Console) -> None
                                   _f(traj[0], ".3f"), _f(traj[1], ".3f"), _f(aligned, ".3f"))
             table.add_section()
     console.print(table)
+    tables.append(table)
+    return tables
 
 
-def print_raw(rows: list[dict], methods: list[str], console: Console) -> None:
+def print_raw(rows: list[dict], methods: list[str], console: Console) -> list:
+    tables: list = []
     if not rows:
-        return
+        return []
     table = Table(title="raw wheel-odometry logs: truth-free metric of the maps from raw, refined and corrected poses "
                         "(the corrected log is a separate, sparser recording of the same run)")
     for col in ("log", "method", "poses", "scans", "count", "precision", "recall", "redundancy"):
@@ -490,6 +499,7 @@ def print_raw(rows: list[dict], methods: list[str], console: Console) -> None:
                               _f(m["recall"], ".3f"), _f(m["redundancy"], ".3f"))
         table.add_section()
     console.print(table)
+    tables.append(table)
     for row in rows:
         if "relations_raw" not in row:
             continue
@@ -507,11 +517,14 @@ def print_raw(rows: list[dict], methods: list[str], console: Console) -> None:
         table.add_row("raw / refined", _f(raw["trans_m"] / ref["trans_m"], ".1f") + "x",
                       _f(raw["rot_deg"] / ref["rot_deg"], ".1f") + "x", "", "", "")
         console.print(table)
+        tables.append(table)
+    return tables
 
 
-def print_timing(timing: dict, console: Console) -> None:
+def print_timing(timing: dict, console: Console) -> list:
+    tables: list = []
     if not timing:
-        return
+        return []
     w, c = timing["warm"], timing["cold"]
     table = Table(title="what refinement adds to a featmap run (residential, 0.3 m / 0.5 deg drift, all methods; "
                         "cached: medians of --repeats runs)")
@@ -525,9 +538,20 @@ def print_timing(timing: dict, console: Console) -> None:
         table.add_row(label, f"{rec['total_s']:.1f}", f"{rec['refinement_s']:.2f}", added,
                       f"{100 * rec['refinement_s'] / rest:.0f}%" if rest > 0 else "-")
     console.print(table)
+    tables.append(table)
+    return tables
 
 
 # --- main --------------------------------------------------------------------------------------------
+
+
+def argv_text(args) -> list[str]:
+    """The options of this run as a user would type them (for the docs)."""
+    out = ["--parts", *args.parts]
+    if args.split != "tuning":
+        out += ["--split", args.split]
+    return out
+
 
 def _level(text: str) -> tuple[float, float]:
     try:
@@ -553,6 +577,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=3, help="timing: runs per setting (median)")
     parser.add_argument("--json", type=Path, help="also write every number to this JSON file")
+    parser.add_argument("--docs", action="store_true",
+                        help="write the tables into docs/pose_refinement.md (blocks pose_<split>_<part>_<k>)")
     args = parser.parse_args(argv)
     console = Console(highlight=False, width=None if os.isatty(1) else 220)
     try:
@@ -582,11 +608,22 @@ def _run(args, console: Console) -> int:
             out["raw"] = run_raw(args, config2d, methods, executor, console)
     if "timing" in args.parts:
         out["timing"] = run_timing(args, console)
-    print_sim(out.get("sim", []), methods, console)
-    print_carmen(out.get("carmen", []), methods, console)
-    print_raw(out.get("raw", []), methods, console)
-    print_timing(out.get("timing", {}), console)
+    tables = {"sim": print_sim(out.get("sim", []), methods, console),
+              "carmen": print_carmen(out.get("carmen", []), methods, console),
+              "raw": print_raw(out.get("raw", []), methods, console),
+              "timing": print_timing(out.get("timing", {}), console)}
     console.print(f"benchmark took {time.perf_counter() - start:.0f} s")
+    if args.docs:
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+        from doc_blocks import write_tables
+
+        page = Path(__file__).resolve().parents[1] / "docs" / "pose_refinement.md"
+        command = f"`.venv/bin/python benchmarks/bench_pose_noise.py {' '.join(argv_text(args))}`"
+        for part, part_tables in tables.items():
+            if part_tables:
+                write_tables(page, f"pose_{args.split}_{part}", part_tables,
+                             f"{command} ({time.strftime('%Y-%m-%d')}, {platform.machine()}):")
+        console.print("wrote the tables into docs/pose_refinement.md")
     if args.json:
         from featmap.io.atomic import atomic_write_text
 

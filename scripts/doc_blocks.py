@@ -35,6 +35,30 @@ def replace_block(path: Path, name: str, body: str) -> None:
     path.write_text(text)
 
 
+def rich_table_markdown(table) -> str:
+    """A rich ``Table`` (as a benchmark prints it) as a Markdown table, its title above in italics."""
+    from rich.text import Text
+
+    from featmap.io.markdown import markdown_table
+
+    header = [Text.from_markup(str(c.header)).plain for c in table.columns]
+    columns = [[Text.from_markup(str(cell)).plain if isinstance(cell, str) else str(cell) for cell in c.cells]
+               for c in table.columns]
+    rows = [list(row) for row in zip(*columns)]
+    title = f"*{Text.from_markup(str(table.title)).plain}*\n\n" if table.title else ""
+    return title + markdown_table(header, rows)
+
+
+def write_tables(path: Path, prefix: str, tables: list, note: str = "") -> list[str]:
+    """Write each rich table into block ``<prefix>_<k>`` of ``path`` (``note`` above the first); the names."""
+    names = []
+    for k, table in enumerate(tables):
+        name = f"{prefix}_{k + 1}"
+        replace_block(path, name, (note + "\n\n" if note and k == 0 else "") + rich_table_markdown(table))
+        names.append(name)
+    return names
+
+
 def doc_blocks(root: Path = ROOT) -> dict[str, tuple[Path, str]]:
     """name -> (docs page, body) of every block under docs/."""
     out = {}
