@@ -11,7 +11,7 @@ cluster).
 from __future__ import annotations
 
 from collections import deque
-from typing import Callable, Iterable, Iterator, Protocol, TypeVar
+from typing import Any, Callable, Iterable, Iterator, Protocol, TypeVar
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -46,6 +46,22 @@ class SerialExecutor:
         pass
 
 
+def bounded_imap(submit: Callable[[T], Any], items: Iterable[T], window: int) -> Iterator:
+    """Results of ``submit(item)`` futures (``.result()``, ``.cancel()``) in the items' order, with at most
+    ``window`` submitted and not yet yielded; the pending ones are cancelled when the caller stops early."""
+    pending: deque = deque()
+    try:
+        for item in items:
+            pending.append(submit(item))
+            if len(pending) >= window:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
+    finally:
+        for future in pending:
+            future.cancel()
+
+
 def _limit_threads() -> None:
     """Worker initializer: one BLAS/OpenMP thread per worker process (the workers are the parallelism)."""
     from threadpoolctl import threadpool_limits
@@ -74,17 +90,7 @@ class ProcessExecutor:
         return self._pool
 
     def imap(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
-        pending: deque = deque()
-        try:
-            for item in items:
-                pending.append(self._get_pool().submit(fn, item))
-                if len(pending) >= self.window:
-                    yield pending.popleft().result()
-            while pending:
-                yield pending.popleft().result()
-        finally:
-            for future in pending:
-                future.cancel()
+        return bounded_imap(lambda item: self._get_pool().submit(fn, item), items, self.window)
 
     def share(self, obj: T) -> T:
         return obj
@@ -121,17 +127,7 @@ class DaskExecutor:
         self.window = window or 2 * self.workers
 
     def imap(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
-        pending: deque = deque()
-        try:
-            for item in items:
-                pending.append(self.client.submit(fn, item, pure=False))
-                if len(pending) >= self.window:
-                    yield pending.popleft().result()
-            while pending:
-                yield pending.popleft().result()
-        finally:
-            for future in pending:
-                future.cancel()
+        return bounded_imap(lambda item: self.client.submit(fn, item, pure=False), items, self.window)
 
     def share(self, obj: T) -> T:
         """A future of ``obj`` held by the cluster: put it into items instead of ``obj`` (sent once, not per task)."""
