@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/bench_fusion_revisits.py                      # the table of the README
     .venv/bin/python benchmarks/bench_fusion_revisits.py --revisits 50 --sizes 2000000 --methods proposed
     .venv/bin/python benchmarks/bench_fusion_revisits.py --exhaustive-max 100000   # also the old pairwise links
+    .venv/bin/python benchmarks/bench_fusion_revisits.py --fuse-process       # whole `featmap fuse` processes
 
 Cases:
 - ``street kK``: a street grid (featmap.simulation.segments.city_walls) driven K times (observe_revisits): per pass
@@ -17,6 +18,10 @@ Every (case, method) runs in a fresh process: imports and the one-off compilatio
 on a tiny input first and reported once (``import s``), never charged to fusion. ``median s`` is the
 median wall-clock of ``--repeats`` fusions (corner optimisation included); ``peak MiB`` is the process's
 peak resident memory (ru_maxrss: Python, libraries, the input and the fusion).
+
+``--fuse-process`` instead writes the freiburg-like case to a ``segments.csv`` and times whole
+``featmap fuse SEGMENTS --method M --out DIR`` processes (start-up, imports, reading, fusion, writing),
+median of ``--repeats``, for ``--method proposed`` and ``--method all`` (the command's default).
 """
 
 from __future__ import annotations
@@ -86,11 +91,16 @@ def main() -> None:
     parser.add_argument("--exhaustive-max", type=int, default=0,
                         help="also time the exhaustive pairwise links (the old proposed method) up to this N")
     parser.add_argument("--no-freiburg", action="store_true", help="skip the freiburg-like case")
+    parser.add_argument("--fuse-process", action="store_true",
+                        help="time whole `featmap fuse` processes on the freiburg-like case instead")
     parser.add_argument("--worker", nargs=4, metavar=("CASE", "METHOD", "N", "REPEATS"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
         case, method, n, repeats = args.worker
         print(json.dumps(worker(case, method, int(n), int(repeats))))
+        return
+    if args.fuse_process:
+        fuse_processes(args.repeats)
         return
 
     cases = [] if args.no_freiburg else [("freiburg-like", 0)]
@@ -118,6 +128,30 @@ def main() -> None:
                   f"{r['median_s']:>9.3f} {r['min_s']:>6.2f}-{r['max_s']:<6.2f} {r['peak_mib']:>9.0f} "
                   f"{r['import_s']:>9.2f}", flush=True)
     print(f"load after: {os.getloadavg()[0]:.2f}")
+
+
+def fuse_processes(repeats: int) -> None:
+    """Median wall-clock of whole ``featmap fuse`` processes on the freiburg-like segments."""
+    import tempfile
+    from pathlib import Path
+
+    segments, scan = make_case("freiburg-like", 0)
+    featmap = Path(sys.executable).with_name("featmap")
+    with tempfile.TemporaryDirectory() as tmp:
+        csv = Path(tmp) / "segments.csv"
+        rows = np.column_stack([scan, segments])
+        np.savetxt(csv, rows, delimiter=",", header="scan,x1,y1,x2,y2", comments="", fmt=["%d"] + ["%.6f"] * 4)
+        print(f"load before: {os.getloadavg()[0]:.2f}; featmap fuse on {len(segments):,} segments "
+              f"({len(np.unique(scan)):,} scans), median of {repeats}")
+        for method in ("proposed", "all"):
+            times = []
+            for k in range(repeats):
+                t0 = time.perf_counter()
+                subprocess.run([str(featmap), "fuse", str(csv), "--method", method, "--out", f"{tmp}/out{k}"],
+                               check=True, capture_output=True)
+                times.append(time.perf_counter() - t0)
+            print(f"  --method {method:9s} {statistics.median(times):6.2f} s  (min {min(times):.2f}, max {max(times):.2f})")
+        print(f"load after: {os.getloadavg()[0]:.2f}")
 
 
 if __name__ == "__main__":
