@@ -49,3 +49,19 @@ def test_a_translated_input_gives_the_same_labels():
     rng = np.random.default_rng(3)
     points = rng.normal(size=(300, 2)) * 2.0 + rng.integers(0, 5, (300, 1)) * 6.0
     assert np.array_equal(mean_shift(points, 1.0), mean_shift(points + [0.37, 123.61], 1.0))
+
+
+def test_default_fusion_does_not_import_scikit_learn():
+    """`featmap fuse --method all` starts in about a second: the default methods never import scikit-learn
+    (density needs it only with min_samples > 1)."""
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "from featmap.fusion.base import TINY_INPUT\n"
+            "from featmap.fusion.registry import FusionConfig, fuse\n"
+            "for name in ('proposed', 'meanshift', 'density'):\n"
+            "    assert len(fuse(name, *TINY_INPUT, FusionConfig())) > 0\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'sklearn'))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
