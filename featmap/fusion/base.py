@@ -211,10 +211,9 @@ def mean_shift(points: np.ndarray, bandwidth: float) -> np.ndarray:
     .fit_predict(points)`` (same seeds, neighbourhoods, means, stopping rule, duplicate removal and
     nearest-centre labels; a test checks it), but every seed climbs in the same iteration with one
     batched radius query per iteration, instead of one Python-level query per seed and iteration
-    (which made scikit-learn's loop 20-50x slower on large maps). The radius and nearest-centre queries
-    use scipy's KD-tree (the same inclusive radius; importing scikit-learn costs about a second).
+    (which made scikit-learn's loop 20-50x slower on large maps).
     """
-    from scipy.spatial import cKDTree
+    from sklearn.neighbors import NearestNeighbors
 
     points = np.asarray(points, dtype=np.float64)
     if len(points) < 2:
@@ -225,14 +224,14 @@ def mean_shift(points: np.ndarray, bandwidth: float) -> np.ndarray:
     seeds = _bin_seeds(points, bandwidth)
     stop_thresh = 1e-3 * bandwidth
     max_iter = 300                                      # MeanShift's default
-    neighbours = cKDTree(points)
+    neighbours = NearestNeighbors(radius=bandwidth, n_jobs=1).fit(points)
     current = seeds.astype(np.float64)                  # float32 bin seeds, as scikit-learn makes them
     final = np.zeros_like(current)
     count = np.zeros(len(seeds), dtype=np.int64)
     iterations = np.zeros(len(seeds), dtype=np.int64)
     active = np.arange(len(seeds))
     while len(active):
-        found = neighbours.query_ball_point(current[active], bandwidth, return_sorted=True)
+        found = neighbours.radius_neighbors(current[active], bandwidth, return_distance=False)
         still = []
         for seed, idx in zip(active, found):
             if len(idx) == 0:
@@ -248,13 +247,13 @@ def mean_shift(points: np.ndarray, bandwidth: float) -> np.ndarray:
     intensity = {tuple(final[s]): int(count[s]) for s in range(len(seeds)) if count[s]}
     by_intensity = sorted(intensity.items(), key=lambda item: (item[1], item[0]), reverse=True)
     centres = np.array([centre for centre, _ in by_intensity])
-    near = cKDTree(centres).query_ball_point(centres, bandwidth)
+    near = NearestNeighbors(radius=bandwidth, n_jobs=1).fit(centres).radius_neighbors(centres, return_distance=False)
     unique = np.ones(len(centres), dtype=bool)
     for k in range(len(centres)):
         if unique[k]:
             unique[near[k]] = False
             unique[k] = True
-    _, nearest = cKDTree(centres[unique]).query(points, k=1)
+    _, nearest = NearestNeighbors(n_neighbors=1, n_jobs=1).fit(centres[unique]).kneighbors(points)
     return nearest.reshape(-1).astype(np.int64)
 
 
