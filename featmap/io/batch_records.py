@@ -11,11 +11,11 @@ import json
 from pathlib import Path
 from typing import Literal, Optional
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
 from featmap.errors import InputFileError
 from featmap.io.atomic import atomic_write_text
-from featmap.io.jsonfile import read_json
+from featmap.io.jsonfile import read_json, validate_record
 from featmap.io.run_metrics import GeoRecord, Score
 
 BATCH_SCHEMA_VERSION = 1
@@ -109,12 +109,7 @@ def _read(path: str | Path, model: type[BaseModel], what: str):
     if not isinstance(data, dict) or data.get("schema_version") != BATCH_SCHEMA_VERSION:
         raise InputFileError(path, f"not a featmap {what} of this version (schema {BATCH_SCHEMA_VERSION}); "
                                    "run featmap batch again")
-    try:
-        return model.model_validate(data)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        where = ".".join(str(p) for p in err["loc"])
-        raise InputFileError(path, f"not a featmap {what}: '{where}' {err['msg'].lower()}") from None
+    return validate_record(path, data, model, what)
 
 
 def write_drive_key(path: str | Path, key: DriveKey) -> Path:

@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
+
+from pydantic import BaseModel, ValidationError
 
 from featmap.errors import InputFileError
+
+Model = TypeVar("Model", bound=BaseModel)
 
 
 def read_json(path: str | Path, missing: str = "file not found") -> Any:
@@ -20,3 +24,14 @@ def read_json(path: str | Path, missing: str = "file not found") -> Any:
         raise InputFileError(path, f"cannot read ({exc})") from None
     except json.JSONDecodeError as exc:
         raise InputFileError(path, f"not valid JSON ({exc.msg})", line=exc.lineno) from None
+
+
+def validate_record(path: str | Path, data: Any, model: type[Model], what: str) -> Model:
+    """``data`` (read from the file at ``path``) as a ``model``; else a one-line error naming the file, the
+    first offending key and what is wrong: ``not a featmap {what}: 'key' message``."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = ".".join(str(p) for p in err["loc"])
+        raise InputFileError(Path(path), f"not a featmap {what}: '{where}' {err['msg'].lower()}") from None

@@ -11,12 +11,12 @@ import json
 from pathlib import Path
 from typing import Optional, Union
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
 from featmap.errors import InputFileError
 from featmap.geo import GeoFrame
 from featmap.io.atomic import atomic_write_text
-from featmap.io.jsonfile import read_json
+from featmap.io.jsonfile import read_json, validate_record
 
 SCHEMA_VERSION = 2
 Score = Union[int, float, None, dict[str, Optional[float]]]
@@ -122,9 +122,4 @@ def read_run_metrics(path: str | Path) -> RunMetrics:
     if data.get("schema_version") != SCHEMA_VERSION:
         raise InputFileError(path, f"written by another featmap version (schema {data.get('schema_version', 1)}, "
                                    f"expected {SCHEMA_VERSION}); run featmap run again")
-    try:
-        return RunMetrics.model_validate(data)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        where = ".".join(str(p) for p in err["loc"])
-        raise InputFileError(path, f"not a featmap metrics file: '{where}' {err['msg'].lower()}") from None
+    return validate_record(path, data, RunMetrics, "metrics file")
