@@ -11,11 +11,11 @@ dropout). ``--split tuning`` (default) uses ``TUNING_SEEDS``, the worlds to deve
 report how final defaults generalise. Each drive is simulated on first use into
 ``data/sim/<split>/procedural_<seed>`` with per-scan ground truth (``truth/observations.npz``).
 
-The default covers every frame of every world of the split (8 tuning or 10 held-out worlds of
-120-260 scans at 10 Hz: 1586 and 2198 scans). First use simulates them (10-100 s and 0.1-0.5 GB per
-world; 2 and 3 min per split), and so does any change to the generator or to the simulator's code.
-With the current extractor on 2 busy cores the tuning split then takes about 4 min and the
-held-out split about 7 min, nearly all of it extraction.
+The default covers every frame of every world of the split (11 tuning or 10 held-out worlds of
+120-260 scans at 10 Hz: 2270 and 2198 scans). First use simulates them (10-100 s and 0.1-0.5 GB per
+world; 2-3 min per split), and so does any change to the generator or to the simulator's code.
+With the current extractor on 2 cores the tuning split then takes about 2 min and the held-out split
+about 3 min, nearly all of it extraction.
 ``--frames ::2`` halves the scans (fused maps then see each wall from half as many places).
 
 Per world and overall it prints:

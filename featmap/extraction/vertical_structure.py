@@ -43,7 +43,9 @@ wall's points away. One pass, no randomness:
 7. **Walls**: a piece is a wall when it has ``min_points`` returns, ``min_length_m`` of length,
    ``max_rms_m`` of spread about its line at most, ``min_core_fraction`` of them close to their
    column's median offset and little seen through it (``max_behind``), is not seen edge-on
-   (``max_incidence_deg``), spans ``min_span_m`` in height, reaches ``min_top_m`` above the local
+   (``max_incidence_deg``), is not two columns of returns with nothing between them (a gap longer
+   than ``max_gap_m`` within ``min_azimuth_steps`` as seen from the sensor: a far corner and a pole
+   one step apart fit any line), spans ``min_span_m`` in height, reaches ``min_top_m`` above the local
    ground, and is tall in one of three ways: it stops the scan's top beam (half of its 0.5 m
    columns whose top is seen), or it is ``tall_m`` high, or it is ``long_m`` long and
    ``long_min_top_m`` high. Heights are medians over the columns, so a tree crown over a fence
@@ -114,6 +116,7 @@ class VerticalStructureConfig(Section):
     min_core_fraction: float = Field(0.65, ge=0, le=1, description="... (foliage scatters its returns evenly; a facade's recesses shift whole columns) ...")
     max_behind: float = Field(1.0, ge=0, description="... and at most this many returns per wall return lie up to 1 m behind it (a wall hides what is behind it; foliage does not)")
     max_incidence_deg: float = Field(88.0, ge=0, le=90, description="a wall is seen at most this far from head-on (returns along a ray are a round thing seen at several depths, not a surface seen edge-on)")
+    min_azimuth_steps: float = Field(1.5, ge=0, description="a wall whose returns leave a gap longer than max_gap_m spans at least this many of the scan's azimuth steps as seen from the sensor (two columns of returns with nothing between, e.g. a far corner and a pole one step apart, fit any line)")
     min_span_m: float = Field(0.8, ge=0, description="a wall's returns span at least this much in height ...")
     min_top_m: float = Field(1.5, ge=0, description="... and reach at least this high above the local ground, and it ...")
     tall_m: float = Field(2.3, ge=0, description="... is hit by the scan's top beam, or is this high (taller than vans, fences, hedges), ...")
@@ -807,6 +810,7 @@ class PieceMeasures:
         rms: (n,) rms distance of the inliers to the line.
         core: (n,) share of inliers within ``core_m`` of the median offset of their 0.5 m column.
         behind: (n,) non-ground points up to ``BEHIND_M`` behind the line (seen from the sensor), per inlier.
+        max_gap: (n,) longest stretch of the line between two consecutive inliers.
     """
 
     a: np.ndarray
@@ -819,6 +823,7 @@ class PieceMeasures:
     rms: np.ndarray
     core: np.ndarray
     behind: np.ndarray
+    max_gap: np.ndarray
 
     @property
     def length(self) -> np.ndarray:
@@ -887,7 +892,18 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
                          z_min=z_min, z_max=z_max,
                          rms=np.sqrt(np.bincount(piece, offset ** 2, n) / safe),
                          core=np.bincount(piece, np.abs(offset - col_median[col]) <= config.core_m, n) / safe,
-                         behind=_points_behind(cells, a, b, config) / safe)
+                         behind=_points_behind(cells, a, b, config) / safe,
+                         max_gap=_max_gap(piece, along, n))
+
+
+def _max_gap(piece: np.ndarray, along: np.ndarray, n: int) -> np.ndarray:
+    """(n,) longest gap between consecutive ``along`` positions (K,) of each piece (``piece`` (K,))."""
+    order = np.lexsort((along, piece))
+    g, t = piece[order], along[order]
+    gap = np.zeros(n)
+    same = g[1:] == g[:-1]
+    np.maximum.at(gap, g[1:][same], np.diff(t)[same])
+    return gap
 
 
 def _untilted(offset: np.ndarray, z: np.ndarray, piece: np.ndarray, n: int, max_deg: float = MAX_TILT_DEG) -> np.ndarray:
@@ -927,9 +943,12 @@ def _points_behind(cells: Cells, a: np.ndarray, b: np.ndarray, config: VerticalS
     return np.bincount(owner[first], cells.points_at(xy[first]), len(a))
 
 
-def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfig) -> ScanSegments:
+def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfig,
+                  azimuth_step_deg: float | None = None) -> ScanSegments:
     """The pieces that pass the final tests (returns, length, spread, thinness, opacity, not seen
-    edge-on, spread against the scan's long walls) as segments (in the frame of ``measures``)."""
+    edge-on, not two columns with nothing between, spread against the scan's long walls) as segments
+    (in the frame of ``measures``). ``azimuth_step_deg``: the scan's (None: not measured; the column
+    test then takes ``link_azimuth_deg / link_azimuth_steps``)."""
     if measures is None:
         return ScanSegments.empty()
     m = measures
@@ -941,6 +960,11 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
     mid = (m.a + m.b) / 2
     along_ray = np.abs(((m.b - m.a) * mid).sum(1)) / np.maximum(m.length * np.hypot(mid[:, 0], mid[:, 1]), 1e-9)
     wall &= along_ray <= np.sin(np.deg2rad(config.max_incidence_deg))
+    if azimuth_step_deg is None and config.link_azimuth_steps > 0:
+        azimuth_step_deg = config.link_azimuth_deg / config.link_azimuth_steps
+    if azimuth_step_deg:
+        two_columns = _azimuth_gap(m.a, m.b) < np.deg2rad(config.min_azimuth_steps * azimuth_step_deg)
+        wall &= ~(two_columns & (m.max_gap > config.max_gap_m))
     # A piece must be about as thin as this scan's long walls are (their spread is the sensor's noise).
     if (wall & solid).sum() >= 3:
         typical = float(np.median(m.rms[wall & solid]))
@@ -1008,7 +1032,7 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
     clock.lap("pieces")
     label = tall_pieces(cells, label, config)
     lean = config.max_lean_deg if R is not None else None
-    result = wall_segments(piece_measures(xyz, height, cells, label, config, lean), config)
+    result = wall_segments(piece_measures(xyz, height, cells, label, config, lean), config, step)
     result = replace(result, support_points=cells.centroid)
     if R is not None:
         result = unlevel_segments(result, R)
@@ -1017,4 +1041,4 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
 
 
 EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,
-                      extract=extract_vertical_structure, version=2)
+                      extract=extract_vertical_structure, version=3)

@@ -182,10 +182,36 @@ def test_pieces_seen_edge_on_are_not_walls():
     def measures(a, b):
         one = np.ones(1)
         return PieceMeasures(a=np.array([a], float), b=np.array([b], float), count=100 * one, n_points=100 * one,
-                             z_mean=0 * one, z_min=-1 * one, z_max=2 * one, rms=0.01 * one, core=one, behind=0 * one)
+                             z_mean=0 * one, z_min=-1 * one, z_max=2 * one, rms=0.01 * one, core=one, behind=0 * one,
+                             max_gap=0 * one)
 
     assert len(wall_segments(measures([40, 1.0], [43, 3.0]), VerticalStructureConfig())) == 1    # 60 deg
     assert len(wall_segments(measures([40, 1.0], [43, 1.1]), VerticalStructureConfig())) == 0    # 89 deg
+
+
+def test_two_columns_with_nothing_between_are_not_a_wall():
+    """Two columns of returns one azimuth step apart (a far corner and a pole) fit any line: a piece
+    spanning less than 1.5 steps as seen from the sensor is dropped when its returns leave a gap, kept
+    when they cover it (a grazing wall) or when it spans three steps or more."""
+    from featmap.extraction.vertical_structure import PieceMeasures, wall_segments
+
+    def measures(a, b, max_gap):
+        one = np.ones(1)
+        return PieceMeasures(a=np.array([a], float), b=np.array([b], float), count=100 * one, n_points=100 * one,
+                             z_mean=0 * one, z_min=-1 * one, z_max=2 * one, rms=0.01 * one, core=one, behind=0 * one,
+                             max_gap=max_gap * one)
+
+    step = 0.38
+    far = np.array([130.0, 0.0])
+    grazing = np.array([np.cos(np.deg2rad(10)), np.sin(np.deg2rad(10))])     # seen 80 deg from head-on
+    across = np.array([np.sin(np.deg2rad(10)), np.cos(np.deg2rad(10))])      # seen 10 deg from head-on
+    one_step = far + 5.0 * grazing          # 0.87 m across the ray at 130 m: 1.0 step
+    config = VerticalStructureConfig()
+    assert len(wall_segments(measures(far, one_step, 4.2), config, step)) == 0           # two columns
+    assert len(wall_segments(measures(far, one_step, 0.3), config, step)) == 1           # returns all along
+    assert len(wall_segments(measures(far, one_step, 4.2), VerticalStructureConfig(min_azimuth_steps=0), step)) == 1
+    three_steps = far + 3.0 * across       # 2.95 m across the ray at 130 m: 3.4 steps
+    assert len(wall_segments(measures(far, three_steps, 1.2), config, step)) == 1
 
 
 def test_deterministic_and_independent_of_point_order():
