@@ -81,6 +81,7 @@ class RefinementRecord(_Model):
     rotation_max_deg: float = 0.0
     residual_before_mm: Optional[float] = Field(None, description="mean distance between matched segments of different scans, source poses")
     residual_after_mm: Optional[float] = Field(None, description="the same after refinement")
+    loops: Optional[int] = Field(None, description="loop closures found by the wide search (None: search off)")
 
 
 class RunMetrics(_Model):

@@ -164,7 +164,8 @@ def refinement_record(run: RefinementRun) -> RefinementRecord:
                             rotation_mean_deg=round(float(turned.mean()), 4) if len(turned) else 0.0,
                             rotation_max_deg=round(float(turned.max()), 4) if len(turned) else 0.0,
                             residual_before_mm=rounded(stats.get("residual_before_mm"), 3),
-                            residual_after_mm=rounded(stats.get("residual_after_mm"), 3))
+                            residual_after_mm=rounded(stats.get("residual_after_mm"), 3),
+                            loops=stats.get("loops"))
 
 
 def _median(values: list[float]) -> float | None:
@@ -184,10 +185,11 @@ def report_refinement(record: RefinementRecord | None, reporter: Reporter) -> No
         return
     agree = (f"mean mismatch between scans {record.residual_before_mm:.1f} -> {record.residual_after_mm:.1f} mm"
              if record.residual_before_mm is not None and record.residual_after_mm is not None else "no segments matched")
+    loops = f", {record.loops} loop(s) closed" if record.loops else ""
     if record.applied:
         reporter.info(f"pose refinement ({record.method}): moved {record.scans} scans by {100 * record.correction_mean_m:.1f} cm "
                       f"and {record.rotation_mean_deg:.2f} deg on average (max {100 * record.correction_max_m:.1f} cm, "
-                      f"{record.rotation_max_deg:.2f} deg), {agree}, {record.seconds:.1f} s")
+                      f"{record.rotation_max_deg:.2f} deg){loops}, {agree}, {record.seconds:.1f} s")
     else:
         reporter.info(f"pose refinement ({record.method}): kept the source poses ({agree}: not a clear improvement), "
                       f"{record.seconds:.1f} s")

@@ -53,7 +53,7 @@ class LoopConfig(Section):
     search_m: float = Field(4.0, gt=0, description="search shifts up to this far ...")
     max_angle_deg: float = Field(6.0, ge=0, description="... and turns up to this much (1 deg steps)")
     min_score: float = Field(0.35, ge=0, le=1, description="keep a loop when the alignment explains at least this share of the points ...")
-    max_ambiguity: float = Field(0.7, ge=0, le=1, description="... and no shift a metre away explains more than this fraction of that (corridors)")
+    max_ambiguity: float = Field(0.65, ge=0, le=1, description="... and no shift a metre away explains more than this fraction of that (corridors)")
     sigma_m: float = Field(0.05, gt=0, description="standard deviation of a loop's relative position")
     sigma_deg: float = Field(0.5, gt=0, description="standard deviation of a loop's relative heading")
     robust_m: float = Field(4.0, gt=0, description="Cauchy kernel scale of a loop's position error: a loop this far off counts half (loops metres open must pull; the checks above keep wrong ones out)")

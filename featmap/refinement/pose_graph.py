@@ -55,7 +55,8 @@ def refine_pose_graph(inp: RefinementInput, config: PoseGraphConfig = PoseGraphC
     return RefinementResult(corrections=full, poses=apply_corrections(inp.poses, full), iterations=iterations,
                             matches=matches, converged=converged,
                             stats={"keyframes": int(len(keys)), **check, "last_step_m": step,
-                                   "loops": int(len(loops)), "loop_candidates": loops.candidates})
+                                   "loops": int(len(loops)) if config.loops.radius_m is not None else None,
+                                   "loop_candidates": loops.candidates})
 
 
 def _close_loops(inp: RefinementInput, config: PoseGraphConfig, c: np.ndarray, loops: Loops,

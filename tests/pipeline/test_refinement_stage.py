@@ -24,6 +24,7 @@ def test_an_exact_drive_is_left_unchanged(case1_drive, tmp_path):
     record = result.metrics.refinement
     assert record.method == "pose_graph" and record.applied is False
     assert record.correction_max_m == 0 and record.rotation_max_deg == 0
+    assert record.loops is None                   # the loop search is off outside the indoor preset
     assert (out / "trajectory_refined.csv").read_text() == (out / "trajectory.csv").read_text()
     corrections = _rows(out / "pose_corrections.csv")
     assert len(corrections) == 40 and all(float(r[k]) == 0 for r in corrections for k in ("dx_m", "dy_m", "dyaw_deg"))
