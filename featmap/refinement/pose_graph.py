@@ -9,7 +9,8 @@ are pulled in first and only close matches decide the final poses. Scans closer 
 ``keyframe_distance_m`` / ``keyframe_angle_deg`` to the previous keyframe are not solved but get
 interpolated corrections. With ``loops.radius_m`` set (odometry poses), loop closures found by a wide
 search after this first solve (:mod:`featmap.refinement.loops`) are closed on the priors alone and the
-matching runs again from the gate that reaches them. Deterministic: no random draws.
+matching runs again from the gate that reaches them; that solution is kept only when the scans agree at
+least as well as without the loops. Deterministic: no random draws.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ from featmap.refinement.base import (RefinementInput, RefinementMethod, Refineme
                                      correct_segments, interpolate_corrections, keyframes)
 from featmap.refinement.loops import LoopConfig, Loops, find_loops, loop_errors, loop_terms
 from featmap.refinement.matching import Matches, scan_pairs, segment_matches
-from featmap.refinement.terms import AlignmentConfig, keep_if_better, normal_equations, solve_normal_equations
+from featmap.refinement.terms import (AlignmentConfig, consistency, keep_if_better, normal_equations,
+                                     solve_normal_equations)
 
 
 class PoseGraphConfig(AlignmentConfig):
@@ -41,22 +43,29 @@ def refine_pose_graph(inp: RefinementInput, config: PoseGraphConfig = PoseGraphC
     sub = inp.subset(keys)
     c, iterations, matches, converged, step = _solve(sub, config, np.zeros((sub.n_scans, 3)), Loops.empty())
     loops = find_loops(sub, c, config.loops)
-    if len(loops):
+    found = len(loops)
+    pairs = scan_pairs(sub.anchors, config.pair_radius_m)
+    if found:
         # close the loops on the priors alone first (matches made while they were open would hold them
-        # open), then match again from the coarsest gate that reaches the most open of them
+        # open), then match again from the coarsest gate that reaches the most open of them; keep the
+        # result only if the scans agree at least as well as without the loops (a wrong loop bends walls)
         widest = float(loop_errors(sub, c, loops).max())
-        c = _close_loops(sub, config, c, loops)
+        closed = _close_loops(sub, config, c, loops)
         gates = config.gates_m
         first = max([k for k, g in enumerate(gates) if g >= widest] or [0])
-        c, more, matches, converged, step = _solve(sub, config, c, loops, gates[first:])
-        iterations += more
-    applied, check = keep_if_better(sub, c, scan_pairs(sub.anchors, config.pair_radius_m), config)
+        closed, more, m_loops, conv_loops, step_loops = _solve(sub, config, closed, loops, gates[first:])
+        if consistency(sub, closed, pairs, config) <= consistency(sub, c, pairs, config):
+            c, matches, converged, step = closed, m_loops, conv_loops, step_loops
+            iterations += more
+        else:
+            loops = Loops.empty(loops.candidates)
+    applied, check = keep_if_better(sub, c, pairs, config)
     full = interpolate_corrections(inp.anchors, keys, c) if applied else np.zeros((inp.n_scans, 3))
     return RefinementResult(corrections=full, poses=apply_corrections(inp.poses, full), iterations=iterations,
                             matches=matches, converged=converged,
                             stats={"keyframes": int(len(keys)), **check, "last_step_m": step,
                                    "loops": int(len(loops)) if config.loops.radius_m is not None else None,
-                                   "loop_candidates": loops.candidates})
+                                   "loops_found": found, "loop_candidates": loops.candidates})
 
 
 def _close_loops(inp: RefinementInput, config: PoseGraphConfig, c: np.ndarray, loops: Loops,
