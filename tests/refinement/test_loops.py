@@ -5,7 +5,7 @@ import pytest
 
 from featmap.datasets.carmen import pose_matrix
 from featmap.refinement import planar_difference
-from featmap.refinement.loops import LoopConfig, align_points, candidate_pairs, find_loops, loop_errors
+from featmap.refinement.loops import LoopConfig, Loops, align_points, candidate_pairs, find_loops, loop_errors
 from featmap.refinement.pose_graph import PoseGraphConfig, refine_pose_graph
 from featmap.extraction.lines_2d import extract_lines_2d
 from featmap.simulation.segments import cast_rays_2d
@@ -156,3 +156,23 @@ def test_loops_are_off_by_default_and_leave_a_drive_unchanged(two_laps):
     assert PoseGraphConfig().loops.radius_m is None
     a, b = refine_pose_graph(inp, config), refine_pose_graph(inp, config)
     assert a.stats["loops"] is None and np.array_equal(a.poses, b.poses)
+
+
+def test_a_wrong_loop_is_dropped_when_it_bends_the_walls(two_laps, monkeypatch):
+    """A loop measured 3 m off (what a row of identical doors could give) makes the scans agree worse
+    than without it: the pose graph keeps the solution without loops."""
+    import featmap.refinement.pose_graph as pose_graph
+
+    truth, odo, scans = two_laps
+    inp = refinement_input(scans, odo)
+    real = pose_graph.find_loops
+
+    def wrong(sub, c, config):
+        found = real(sub, c, config)
+        return Loops(found.i, found.j, found.delta + [3.0, 0.0, 0.0], found.score, found.ambiguity, found.candidates)
+
+    monkeypatch.setattr(pose_graph, "find_loops", wrong)
+    result = refine_pose_graph(inp, _odometry_config(True))
+    without = refine_pose_graph(inp, _odometry_config(False))
+    assert result.stats["loops_found"] > 0 and result.stats["loops"] == 0
+    assert np.array_equal(result.poses, without.poses)
