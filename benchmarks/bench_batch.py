@@ -111,7 +111,8 @@ def main() -> None:
     times: dict[str, list[float]] = {}
     cpu: dict[str, list[float]] = {}
     last = {}
-    with tempfile.TemporaryDirectory(dir=".") as tmp:
+    Path("data").mkdir(exist_ok=True)
+    with tempfile.TemporaryDirectory(dir="data", prefix="bench_batch_") as tmp:      # ignored by git if a run is killed
         tmp = Path(tmp)
         for r in range(args.repeats):
             cases = [("sequential, featmap run -j 2", lambda f: sequential(f, args.frames, 2)),
