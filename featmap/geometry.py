@@ -24,6 +24,18 @@ def segment_lengths(segments: np.ndarray) -> np.ndarray:
     return np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
 
 
+def dense_samples(segments: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points along each (M, 4) segment, both endpoints included, at most ``step`` apart:
+    (samples (S, 2), owner segment (S,))."""
+    lengths = segment_lengths(segments)
+    n = np.maximum(np.ceil(lengths / step).astype(np.int64), 1) + 1
+    owner = np.repeat(np.arange(len(segments)), n)
+    start = np.cumsum(n) - n
+    t = (np.arange(n.sum()) - start[owner]) / (n[owner] - 1)
+    a, b = segments[owner, :2], segments[owner, 2:]
+    return a + t[:, None] * (b - a), owner
+
+
 def segment_midpoints(segments: np.ndarray) -> np.ndarray:
     """(N, 2) midpoint of each segment (the centre of its feature circle)."""
     return 0.5 * (segments[:, :2] + segments[:, 2:])

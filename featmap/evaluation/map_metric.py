@@ -34,7 +34,7 @@ from pydantic import Field
 from scipy.spatial import cKDTree
 
 from featmap.config import Section
-from featmap.geometry import as_segments, segment_lengths
+from featmap.geometry import as_segments, dense_samples, segment_lengths
 
 
 class TruthFreeConfig(Section):
@@ -82,17 +82,6 @@ def sample_segments(segments: np.ndarray, step: float) -> tuple[np.ndarray, np.n
     return a + t[:, None] * (b - a), owner, (lengths / n)[owner]
 
 
-def _dense_samples(segments: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
-    """Samples including both endpoints, at most ``step`` apart along each segment: (S, 2), owner (S,)."""
-    lengths = segment_lengths(segments)
-    n = np.maximum(np.ceil(lengths / step).astype(np.int64), 1) + 1
-    owner = np.repeat(np.arange(len(segments)), n)
-    start = np.cumsum(n) - n
-    t = (np.arange(n.sum()) - start[owner]) / (n[owner] - 1)
-    a, b = segments[owner, :2], segments[owner, 2:]
-    return a + t[:, None] * (b - a), owner
-
-
 def _distance_to(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
     """(K,) exact distance of each point (K, 2) to the matching segment (K, 4) (row-wise)."""
     a = segments[:, :2]
@@ -110,7 +99,7 @@ class SegmentIndex:
         self.segments = as_segments(segments)
         self.tolerance = float(tolerance)
         self.radius = math.hypot(tolerance, 0.5 * candidate_step)
-        samples, self.owner = _dense_samples(self.segments, candidate_step)
+        samples, self.owner = dense_samples(self.segments, candidate_step)
         self.tree = cKDTree(samples) if len(samples) else None
 
     def pairs(self, points: np.ndarray, chunk: int = 200_000) -> tuple[np.ndarray, np.ndarray]:

@@ -27,6 +27,7 @@ from scipy import sparse
 from scipy.ndimage import gaussian_filter
 
 from featmap.config import Section
+from featmap.geometry import dense_samples
 from featmap.refinement.base import RefinementInput, correct_segments
 
 CELL_M = 0.2
@@ -110,14 +111,7 @@ def _window_points(segments: np.ndarray, scan: np.ndarray, travel: np.ndarray, c
     """(P, 2) points sampled along the segments of the keyframes within ``window_m`` of travel of ``centre``,
     at most ``CROP_M`` from ``anchor`` (2,)."""
     near = np.flatnonzero(np.abs(travel - travel[centre]) <= window_m)
-    seg = segments[np.isin(scan, near)]
-    if not len(seg):
-        return np.zeros((0, 2))
-    length = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
-    n = np.maximum(1, np.ceil(length / SAMPLE_M).astype(np.int64)) + 1
-    owner = np.repeat(np.arange(len(seg)), n)
-    t = (np.arange(len(owner)) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n - 1, n)
-    points = seg[owner, :2] + t[:, None] * (seg[owner, 2:] - seg[owner, :2])
+    points, _ = dense_samples(segments[np.isin(scan, near)], SAMPLE_M)
     return points[np.hypot(*(points - anchor).T) <= CROP_M]
 
 
