@@ -17,13 +17,19 @@ A sweep file::
     seed: 0
     select: {metric: quality, goal: max}
 
-Each method is swept over the keys of its own section (``fusion.<method>.*``) and the shared
-``fusion.corners.*``; other methods' keys stay at the base value for it. Every combination is
+Each method is swept over the keys of its own section (``fusion.<method>.*``) and of the sections all
+methods share (``fusion.refine.*``, ``fusion.corners.*``); other methods' keys stay at the base value for it. Every combination is
 validated before anything runs. Results are appended to ``results.jsonl`` as they finish, so an
 interrupted sweep resumes where it stopped; the file starts with the sweep's identity (the input's
 content and the resolved base config), and a sweep of other inputs into the same folder is refused.
 
-``quality`` = F1(precision, recall) / max(1, count_ratio): accurate *and* concise.
+A source (``drive``, ``dataset``) is extracted (cached), its poses refined and its reference found as
+``featmap run`` does, so a row scores the map a run with its settings would make. The reference is
+the run's primary one: the ground truth of a simulated drive or footprints, else the truth-free map
+metric against the scans' own points (real KITTI drives, CARMEN logs).
+
+``quality`` = F1(precision, recall) / max(1, count_ratio) against a ground truth, and
+F1 / (1 + redundancy) against the scans' own points: accurate *and* concise.
 """
 
 from __future__ import annotations
@@ -48,7 +54,7 @@ from featmap.pipeline.config import FeatmapConfig, config_from_dict
 from featmap.pipeline.executor import Executor, SerialExecutor
 from featmap.reporting import NullReporter, Reporter, track
 
-METRICS = ("count", "count_ratio", "precision", "precision_any", "recall", "redundancy", "offset_cm",
+METRICS = ("count", "count_ratio", "precision", "precision_any", "recall", "redundancy", "compression", "offset_cm",
            "corner_err_cm", "f1", "quality", "seconds")
 MAX_COMBINATIONS = 100_000
 
@@ -152,6 +158,13 @@ def load_sweep(path: str | Path) -> SweepSpec:
         raise ConfigError(f"{path}: {where + ': ' if where else ''}{msg}") from None
 
 
+def applies_to(key: str, method: str) -> bool:
+    """Whether grid key ``key`` (``fusion.*``) varies ``method``: its own section's keys, and the keys of the
+    sections every method shares (``fusion.refine.*``, ``fusion.corners.*``)."""
+    section = key.split(".")[1]
+    return section == method or section not in FUSION_METHODS
+
+
 def expand(spec: SweepSpec, base: dict, source: str = "sweep") -> tuple[list[Combination], dict[str, FeatmapConfig]]:
     """Validate keys, values and every combination; return the combinations and their configs."""
     leaves = set(leaf_keys(FeatmapConfig))
@@ -170,8 +183,7 @@ def expand(spec: SweepSpec, base: dict, source: str = "sweep") -> tuple[list[Com
     for name in spec.methods:
         if name not in FUSION_METHODS:
             raise ConfigError(f"{source}: unknown method '{name}'; allowed: {', '.join(FUSION_METHODS)}")
-    keys_of = {name: [k for k in values if k.startswith(f"fusion.{name}.") or k.startswith("fusion.corners.")]
-               for name in spec.methods}
+    keys_of = {name: [k for k in values if applies_to(k, name)] for name in spec.methods}
     total = sum(math.prod(len(values[k]) for k in keys) for keys in keys_of.values())
     limit = spec.samples or MAX_COMBINATIONS
     if total > MAX_COMBINATIONS and not spec.samples:
@@ -204,9 +216,14 @@ def expand(spec: SweepSpec, base: dict, source: str = "sweep") -> tuple[list[Com
 
 
 def _score(metrics: dict) -> dict:
-    p, r, cr = metrics.get("precision"), metrics.get("recall"), metrics.get("count_ratio")
+    """``metrics`` with ``f1`` and ``quality`` (see the module doc) added."""
+    p, r, cr, red = (metrics.get(k) for k in ("precision", "recall", "count_ratio", "redundancy"))
     f1 = 2 * p * r / (p + r) if p is not None and r is not None and (p + r) > 0 else None
-    quality = f1 / max(1.0, cr) if f1 is not None and cr is not None else None
+    quality = None
+    if f1 is not None and cr is not None:               # against a ground truth
+        quality = f1 / max(1.0, cr)
+    elif f1 is not None and red is not None:            # against the scans' own points (truth-free)
+        quality = f1 / (1.0 + red)
     return {**metrics, "f1": f1, "quality": quality}
 
 
@@ -309,7 +326,8 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
     from featmap.io.run_metrics import read_run_metrics
     from featmap.io.segments_csv import read_segments_csv
     from featmap.pipeline.extract import extract_source
-    from featmap.pipeline.run import prepare_references
+    from featmap.pipeline.refine import refine_extraction
+    from featmap.pipeline.run import primary_reference
     from featmap.pipeline.segment_store import SegmentStore
 
     if spec.input is not None:
@@ -349,10 +367,11 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
         source_spec = SourceSpec("kitti_raw", str(Path(spec.data_dir) / date / f"{spec.drive}_sync"), spec.frames)
     source = open_source(source_spec, reporter)
     extraction = extract_source(source, base.extraction, SegmentStore(cache_dir), executor, reporter)
-    table = extraction.world_table()
-    ctx = EvaluationContext(source.location, extraction.frames, source.geo_origin, base.evaluation)
-    references = prepare_references(ctx)
-    reference = next(iter(references.values()), None)
+    poses = refine_extraction(extraction, base.refinement).poses       # the poses a run would fuse with
+    table = extraction.world_table(poses)
+    ctx = EvaluationContext(source.location, extraction.frames, source.geo_origin, base.evaluation,
+                            extraction.world_points(poses), table.segments)
+    reference = primary_reference(ctx)
     digest = _digest(table.segments.tobytes(), table.scan.tobytes(), str(reference[1].path if reference else "").encode())
     return SweepInputs(table.segments, table.scan, reference, digest)
 
@@ -406,8 +425,7 @@ def run_sweep_file(spec_path: str | Path, out: str | Path, executor: Executor = 
     atomic_write_text(out / "sweep.csv", buf.getvalue())
     best = best_row(rows, spec.select) if inputs.reference is not None else None
     if best is not None:
-        overrides_best = [f"{k}={json.dumps(best[k])}" for k in keys if k in best and
-                          (k.startswith(f"fusion.{best['method']}.") or k.startswith("fusion.corners."))]
+        overrides_best = [f"{k}={json.dumps(best[k])}" for k in keys if k in best and applies_to(k, best["method"])]
         cfg = config_from_dict(apply_overrides(base, overrides_best, FeatmapConfig), "best")
         header = (f"# best of {len(rows)} combinations for {spec.select.goal} {spec.select.metric} "
                   f"= {best[spec.select.metric]:.4f} (method {best['method']}); use with --config\n")

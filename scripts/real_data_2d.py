@@ -1,7 +1,7 @@
 """Real 2D laser logs (CARMEN) through `featmap run`, scored with the truth-free metric; docs/real_data_2d.md.
 
     .venv/bin/python scripts/real_data_2d.py [--data-dir ../shared/data/carmen_2d] [--logs intel aces fhw]
-                                             [--out runs/real_2d] [--failure-modes]
+                                             [--out runs/real_2d] [--failure-modes] [--frontier]
 
 For each ``<log>-corrected.log.gz`` and each preset, ``indoor_2d`` (featmap's defaults for 2D logs, what
 ``featmap run --carmen`` uses), ``default`` (the defaults chosen for KITTI-like drives) and ``paper`` (the
@@ -13,6 +13,11 @@ count, compression). Writes ``docs/real_data_2d.md`` (the table, and with ``--fa
 modes counted on each map) and ``docs/figures/real_2d/<log>.png`` (the proposed method's map under the
 ``indoor_2d`` and ``paper`` presets over the scan points). intel and aces were used to choose the 2D
 defaults; fhw was held out (run only to report).
+
+``--frontier`` also sweeps the settings that trade recall for compression (support rules, eta, delta,
+doorway cuts; ``FRONTIER_GRID``) on each log with ``featmap sweep`` (scored as a run would be) and
+reports the best recall reached at each compression among settings that keep precision >= 0.97 and
+redundancy <= 0.05, with doorways cut (the indoor preset) and with lines across them.
 """
 
 from __future__ import annotations
@@ -20,10 +25,12 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import shutil
 import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from featmap.console import RichReporter
 from featmap.datasets.carmen import CarmenSource
@@ -31,13 +38,25 @@ from featmap.evaluation.map_metric import SegmentIndex, sample_segments
 from featmap.fusion import FUSION_METHODS
 from featmap.io.markdown import markdown_table
 from featmap.io.segments_csv import read_fused_csv
-from featmap.pipeline import MappingPipeline, SegmentStore, load_config
+from featmap.pipeline import MappingPipeline, SegmentStore, load_config, local_executor
 from featmap.pipeline.extract import extract_source
 from featmap.reporting import NullReporter
+from featmap.sweep import run_sweep_file
 
 ROOT = Path(__file__).resolve().parents[1]
 PRESETS = ("indoor_2d", "default", "paper")
 HELD_OUT = {"fhw"}
+FRONTIER_GRID = {
+    "fusion.proposed.min_support": [1, 2, 3],
+    "fusion.proposed.min_support_length_m": [0.5, 1.0, 3.0],
+    "fusion.proposed.min_single_length_m": [0.5, 1.0, 2.0, 5.0],
+    "fusion.proposed.eta_m": [0.2, 0.5, 1.2],
+    "fusion.proposed.delta_deg": [5.0, 10.0],
+    "fusion.refine.split_gap_m": [0.0, 0.3],
+}
+"""What ``--frontier`` sweeps around the indoor preset (432 combinations per log)."""
+FRONTIER_LEVELS = (6, 8, 10, 12)
+"""Compressions at which ``--frontier`` reports the best recall."""
 
 
 def default_data_dir() -> Path:
@@ -96,6 +115,36 @@ def failure_modes(fused: np.ndarray, labels: np.ndarray, segments: np.ndarray, p
             "two_walls": two_walls, "duplicates": int(duplicates), "lost_wall_points": lost}
 
 
+def compression_frontier(log: Path, out: Path, cache_dir: Path, workers: int = 2) -> list[dict]:
+    """Every row of a fresh ``featmap sweep`` of ``FRONTIER_GRID`` (proposed method, indoor preset) on ``log``."""
+    if out.exists():
+        shutil.rmtree(out)
+    out.mkdir(parents=True)
+    spec = {"base": str(ROOT / "configs" / "indoor_2d.yaml"), "dataset": "carmen", "location": str(log),
+            "methods": ["proposed"], "grid": FRONTIER_GRID}
+    (out / "frontier.yaml").write_text(yaml.safe_dump(spec, sort_keys=False))
+    with local_executor(workers) as executor:
+        rows, _ = run_sweep_file(out / "frontier.yaml", out / "sweep", executor, cache_dir=cache_dir)
+    return rows
+
+
+def frontier_table_rows(name: str, rows: list[dict]) -> list[list]:
+    """Per doorway rule (cut at 0.3 m gaps as the indoor preset does, or lines across them): the best recall
+    reached at each of ``FRONTIER_LEVELS`` compressions by settings with precision >= 0.97 and redundancy
+    <= 0.05, as "recall (compression)"."""
+    out = []
+    for split, label in ((0.3, "cut (indoor_2d)"), (0.0, "spanned")):
+        ok = [r for r in rows if r["fusion.refine.split_gap_m"] == split and r.get("precision") is not None
+              and r["precision"] >= 0.97 and r["redundancy"] <= 0.05]
+        cells = []
+        for level in FRONTIER_LEVELS:
+            reach = [r for r in ok if r["compression"] >= level]
+            best = max(reach, key=lambda r: r["recall"]) if reach else None
+            cells.append(f"{best['recall']:.3f} ({best['compression']:.1f}x)" if best else "-")
+        out.append([name + (" (held out)" if name in HELD_OUT else ""), label, len(ok), *cells])
+    return out
+
+
 def plot_log(path: Path, name: str, maps: dict[str, tuple[np.ndarray, np.ndarray]], scores: dict) -> None:
     """One panel per preset: its fused map (F, 4) over the scan points (P, 2) placed with its own poses."""
     from featmap.plotting.style import new_figure, save_png
@@ -123,12 +172,13 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "real_2d")
     parser.add_argument("--cache-dir", type=Path, default=ROOT / "data" / "cache")
     parser.add_argument("--failure-modes", action="store_true", help="also count the failure modes of issue 10")
+    parser.add_argument("--frontier", action="store_true", help="also sweep the recall-compression trade-off of each log")
     args = parser.parse_args()
     start = time.time()
     reporter = RichReporter()
     store = SegmentStore(args.cache_dir)
     methods = list(FUSION_METHODS)
-    rows, failures, read_seconds = [], [], {}
+    rows, failures, frontier, read_seconds = [], [], [], {}
     for name in args.logs:
         path = args.data_dir / f"{name}-corrected.log.gz"
         t0 = time.perf_counter()
@@ -155,11 +205,14 @@ def main() -> None:
                 scores[preset] = result.metrics.primary_scores("proposed")
         plot_log(ROOT / "docs" / "figures" / "real_2d" / f"{name}.png", name, maps, scores)
         reporter.info(f"{name}: {len(source)} scans read and extracted in {read_seconds[name]:.2f} s")
+        if args.frontier:
+            frontier += frontier_table_rows(name, compression_frontier(path, args.out / name / "frontier", args.cache_dir))
 
     header = ["log", "scans", "preset", "method", "raw segments", "features", "precision", "recall", "redundancy",
               "compression", "fusion s"]
     md = ["# Real 2D laser logs", "",
-          f"Made by `.venv/bin/python scripts/real_data_2d.py{' --failure-modes' if args.failure_modes else ''}` on "
+          f"Made by `.venv/bin/python scripts/real_data_2d.py{' --failure-modes' if args.failure_modes else ''}"
+          f"{' --frontier' if args.frontier else ''}` on "
           f"{platform.machine()} ({time.strftime('%Y-%m-%d')}, {time.time() - start:.0f} s). Each row is "
           "`featmap run --carmen LOG --config PRESET` on the Radish logs with SLAM-corrected poses "
           "(`../shared/data/carmen_2d/`), scored with the truth-free metric against the log's own scan points "
@@ -181,6 +234,17 @@ def main() -> None:
                "dropped clusters.", "",
                markdown_table(["log", "preset", "method", "door spans", "max off m", "two walls", "duplicates",
                                "lost wall points"], failures, 3), ""]
+    if frontier:
+        levels = [f">= {level}x" for level in FRONTIER_LEVELS]
+        md += ["## Recall against compression", "",
+               f"`featmap sweep` of {int(np.prod([len(v) for v in FRONTIER_GRID.values()]))} settings of the proposed "
+               "method around the indoor preset on each log (`FRONTIER_GRID` in the script: min_support, "
+               "min_support_length_m, min_single_length_m, eta_m, delta_deg, and fusion.refine.split_gap_m 0.3 = "
+               "doorways cut or 0 = lines across them), each scored as its run would be. Per cell: the best recall "
+               "reached at that compression or more by a setting with precision >= 0.97 and redundancy <= 0.05 "
+               "(\"-\": none), with the compression it reached; \"settings\" counts those settings.", "",
+               "<!-- table:real_2d_frontier -->",
+               markdown_table(["log", "doorways", "settings", *levels], frontier, 3), "<!-- /table -->", ""]
     md += [f"![{name}](figures/real_2d/{name}.png)" for name in args.logs]
     (ROOT / "docs" / "real_data_2d.md").write_text("\n".join(md) + "\n")
     reporter.table("CARMEN logs, truth-free metric (5 cm), indoor_2d preset", header,

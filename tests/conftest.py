@@ -37,6 +37,34 @@ def shared_data(*parts) -> Path:
     return path
 
 
+# A 12 m x 8 m room: a 1 m doorway in the north wall, a 1 m x 1 m pillar in the middle.
+ROOM_WITH_PILLAR = ([0, 0, 12, 0], [12, 0, 12, 8], [12, 8, 6.5, 8], [5.5, 8, 0, 8], [0, 8, 0, 0],
+        [5.5, 8, 5.5, 9], [6.5, 8, 6.5, 9],
+        [6, 3, 7, 3], [7, 3, 7, 4], [7, 4, 6, 4], [6, 4, 6, 3])
+
+
+def write_room_log(path: Path, rng, n_scans: int = 60) -> Path:
+    """A CARMEN log of a robot driving a loop around the pillar (1 cm range noise, exact poses)."""
+    import numpy as np
+
+    from featmap.io.carmen import carmen_beam_angles
+    from featmap.simulation.segments import cast_rays_2d
+
+    angles = carmen_beam_angles(180)
+    lines = ["# synthetic", "PARAM robot_frontlaser_offset 0.0 nohost 0"]
+    for k in range(n_scans):
+        phi = 2 * np.pi * k / n_scans
+        pose = np.array([6.5 + 4.0 * np.cos(phi), 3.5 + 2.2 * np.sin(phi), phi + np.pi / 2])
+        r = cast_rays_2d(np.array(ROOM_WITH_PILLAR, float), pose, angles, max_range=81.83)
+        r = np.where(r < 81.83, r + rng.normal(0, 0.01, len(r)), r)
+        fields = " ".join(f"{v:.3f}" for v in r)
+        p = " ".join(f"{v:.6f}" for v in pose)
+        lines.append(f"FLASER 180 {fields} {p} {p} {k * 0.2:.3f} host {k * 0.2:.3f}")
+        lines.append(f"ODOM {p} 0 0 0 {k * 0.2:.3f} host {k * 0.2:.3f}")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
 TINY_WORLD = """name: tiny
 geo_origin: {lat: 49.0100, lon: 8.4200}
 route: {waypoints: [[0, 0], [24, 0]], speed_mps: 8, turn_radius_m: 0}

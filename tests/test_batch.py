@@ -300,11 +300,11 @@ def test_a_batch_on_a_real_scheduler_and_workers(first_batch, tiny_worlds, real_
 
 def test_drives_without_a_geo_origin_merge_only_within_one_log(first_batch, dask_client, tiny_worlds, tmp_path):
     """Two halves of one indoor log share its frame; among drives with a geo origin it cannot be placed."""
-    from tests.pipeline.test_presets import _write_log
+    from tests.conftest import write_room_log
 
     tmp = first_batch[0]
     log = tmp_path / "room.log"
-    _write_log(log, np.random.default_rng(0))
+    write_room_log(log, np.random.default_rng(0))
     halves = (f"  - dataset: carmen\n    location: {log}\n    frames: '0:30'\n    name: room_a\n"
               f"  - dataset: carmen\n    location: {log}\n    frames: '30:60'\n    name: room_b\n")
     path = write_batch(tmp_path / "b.yaml", tiny_worlds, tmp / "data" / "sim", tmp / "cache", halves)

@@ -141,3 +141,51 @@ def test_a_huge_grid_is_refused_before_expanding_or_sampled(tmp_path):
     combos, _ = expand(spec.model_copy(update={"samples": 50}), {})
     assert len(combos) == 50 and len({c.key for c in combos}) == 50
     assert MAX_COMBINATIONS < 1e9
+
+
+def test_a_sweep_of_a_2d_log_scores_the_maps_a_run_makes(tmp_path):
+    """A source without ground truth is scored with the truth-free metric, on the poses a run would use;
+    the shared ``fusion.refine.*`` keys vary every method; a row equals ``featmap run`` with its settings."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from featmap.io.run_metrics import read_run_metrics
+    from tests.conftest import write_room_log
+
+    preset = Path(__file__).resolve().parents[1] / "configs" / "indoor_2d.yaml"
+    log = write_room_log(tmp_path / "room.log", np.random.default_rng(0))
+    path = _write(tmp_path, f"""
+base: {preset}
+dataset: carmen
+location: {log}
+methods: [proposed, density]
+grid:
+  fusion.proposed.eta_m: [0.2, 0.5]
+  fusion.refine.split_gap_m: [0.0, 0.3]
+""")
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["sweep", str(path), "--out", str(out), "--workers", "1", "--cache-dir", str(tmp_path / "c")])
+    assert res.exit_code == 0, res.output
+    rows = list(csv.DictReader(open(out / "sweep.csv")))
+    assert len(rows) == 2 * 2 + 2                       # density varies with the shared key too
+    assert {"precision", "recall", "redundancy", "compression", "f1", "quality"} <= set(rows[0])
+    assert "count_ratio" not in rows[0]
+    for r in rows:
+        p, rc, red = float(r["precision"]), float(r["recall"]), float(r["redundancy"])
+        assert float(r["quality"]) == pytest.approx(2 * p * rc / (p + rc) / (1 + red))
+    # the doorway of the north wall: spanned without the gap split, cut with it (one more feature)
+    by = {(r["method"], r.get("fusion.proposed.eta_m"), r["fusion.refine.split_gap_m"]): r for r in rows}
+    assert int(by[("density", "", "0.3")]["count"]) > int(by[("density", "", "0.0")]["count"])
+    assert (out / "best.yaml").exists() and (out / "pareto.png").stat().st_size > 5000
+    # the same settings through featmap run give the same map and the same scores
+    run = runner.invoke(app, ["run", "--carmen", str(log), "--out", str(tmp_path / "run"), "--workers", "1",
+                              "--cache-dir", str(tmp_path / "c"), "--set", "fusion.proposed.eta_m=0.5",
+                              "--set", "fusion.refine.split_gap_m=0.0", "--method", "proposed,density"])
+    assert run.exit_code == 0, run.output
+    metrics = read_run_metrics(tmp_path / "run" / "metrics.json")
+    for method, row in (("proposed", by[("proposed", "0.5", "0.0")]), ("density", by[("density", "", "0.0")])):
+        scores = metrics.primary_scores(method)
+        assert int(row["count"]) == metrics.methods[method].count
+        for key in ("precision", "recall", "redundancy", "compression"):
+            assert float(row[key]) == pytest.approx(scores[key], rel=1e-9), (method, key)

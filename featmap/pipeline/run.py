@@ -57,6 +57,16 @@ def prepare_references(context: EvaluationContext,
     return found
 
 
+def primary_reference(context: EvaluationContext, evaluators: tuple[Evaluator, ...] = EVALUATORS
+                      ) -> tuple[Evaluator, Reference] | None:
+    """The first evaluator that finds its reference (the run's primary score), without preparing the others."""
+    for evaluator in evaluators:
+        reference = evaluator.prepare(context)
+        if reference is not None:
+            return evaluator, reference
+    return None
+
+
 class MappingPipeline:
     """Extract, fuse, score and write one scan source.
 

@@ -74,17 +74,22 @@ def plot_sweep(rows: list[dict], keys: list[str], out: Path, metric: str) -> lis
         fig.tight_layout()
         save_png(fig, out / "curves.png")
         paths.append(out / "curves.png")
-    scored = [r for r in rows if r.get("count_ratio") is not None and r.get("f1") is not None]
+    # Conciseness: fused features per observable wall against a ground truth, else the feature count.
+    cost = "count_ratio" if any(r.get("count_ratio") is not None for r in rows) else "count"
+    scored = [r for r in rows if r.get(cost) is not None and r.get("f1") is not None]
     if scored:
         fig, ax = new_figure(size=(9, 7))
-        pts = np.array([[r["count_ratio"], r["f1"]] for r in scored])
+        pts = np.array([[r[cost], r["f1"]] for r in scored], float)
         for method in sorted({r["method"] for r in scored}):
             m = np.array([r["method"] == method for r in scored])
             ax.scatter(pts[m, 0], pts[m, 1], color=method_color(method), label=method_label(method), alpha=0.7)
         front = pareto_front(pts)
         ax.plot(pts[front, 0], pts[front, 1], "k--", lw=1, label="Pareto front")
-        ax.axvline(1.0, color="0.6", lw=0.8)
-        ax.set_xlabel("count_ratio = fused features / observable walls (conciseness; 1 is ideal)")
+        if cost == "count_ratio":
+            ax.axvline(1.0, color="0.6", lw=0.8)
+            ax.set_xlabel("count_ratio = fused features / observable walls (conciseness; 1 is ideal)")
+        else:
+            ax.set_xlabel("fused features (conciseness; scored against the scans' own points)")
         ax.set_ylabel("F1 of precision and recall (accuracy)")
         ax.set_title("Conciseness against accuracy across all methods and settings")
         ax.grid(True, alpha=0.3)
