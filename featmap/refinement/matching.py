@@ -129,16 +129,17 @@ def segment_matches(segments: np.ndarray, scan: np.ndarray, pairs: np.ndarray, g
         min_overlap: shorter overlaps are not matched (m).
     """
     segments = np.asarray(segments, float).reshape(-1, 4)
-    n_scans = int(scan.max()) + 1 if len(scan) else 0
     if len(pairs) == 0 or len(segments) == 0:
         return Matches.empty()
+    pairs = np.asarray(pairs, np.int64)
+    n_scans = max(int(scan.max()), int(pairs.max())) + 1          # scans without segments may be paired too
     count = np.bincount(scan, minlength=n_scans)
     start = np.concatenate([[0], np.cumsum(count)[:-1]])
     geo = _Geometry(segments)
     sin_max = np.sin(np.deg2rad(angle_deg))
     reach = gate + margin
     parts = []
-    for a, b, pid in _combinations(np.asarray(pairs, np.int64), start, count, chunk):
+    for a, b, pid in _combinations(pairs, start, count, chunk):
         # Cheap tests first: near-parallel, and the two segments' circles (plus the gate) touch.
         ok = np.abs(geo.unit[a, 0] * geo.unit[b, 1] - geo.unit[a, 1] * geo.unit[b, 0]) <= sin_max
         a, b, pid = a[ok], b[ok], pid[ok]

@@ -96,3 +96,18 @@ def test_empty_and_segment_free_inputs():
     poses = np.tile(np.eye(4), (3, 1, 1))
     bare = refine(RefinementInput(np.zeros((0, 4)), np.zeros(0, int), poses, np.arange(3.0)))
     assert np.array_equal(bare.poses, poses) and bare.stats["applied"] is False
+
+
+@pytest.mark.parametrize("name", sorted(REFINEMENT_METHODS))
+def test_scans_without_segments_at_the_end_are_refined_with_the_rest(hall, name):
+    """The last scans of a drive may see no wall (open country): they are paired like any other and keep
+    their pose's correction from their neighbours, instead of failing (they used to index past the end)."""
+    poses, scans = hall
+    from featmap.extraction.base import ScanSegments
+
+    scans = list(scans[:-3]) + [ScanSegments.empty()] * 3
+    given = poses + [0.15, -0.1, 0.01] * (np.arange(len(poses)) >= 12)[:, None]
+    inp = refinement_input(scans, given)
+    assert inp.scan.max() < inp.n_scans - 3
+    result = refine(inp, RefinementConfig(method=name))
+    assert result.poses.shape == inp.poses.shape and np.isfinite(result.poses).all()
