@@ -115,8 +115,62 @@ def _combinations(pairs: np.ndarray, start: np.ndarray, count: np.ndarray, chunk
         lo = hi
 
 
+class MatchCandidates:
+    """The segment combinations of scan pairs that may match, reused while the segments move little.
+
+    :func:`segment_matches` looks at every segment of scan ``i`` against every segment of scan ``j`` of
+    every pair (tens of millions of combinations on a long drive) and keeps the near-parallel ones whose
+    circles touch; the refinement asks again at every iteration with the same pairs while the poses
+    barely move. This keeps the combinations that pass those two tests with ``slack_m`` more reach and
+    ``slack_deg`` more angle, and reuses them while no segment end has moved more than ``slack_m / 2``
+    nor turned more than ``slack_deg / 2`` since (the pairs, the segments' scans and the angle being the
+    same, and the reach no larger): every combination that passes the tests then is among them, so the
+    matches are the same as a fresh search would find. Otherwise it searches afresh.
+    """
+
+    def __init__(self, slack_m: float = 0.5, slack_deg: float = 1.0):
+        self.slack_m = float(slack_m)
+        self.slack_deg = float(slack_deg)
+        self.builds = 0
+        self._built: tuple | None = None      # (pairs, scan, angle_deg, reach, segments, unit, chunks)
+
+    def get(self, segments: np.ndarray, scan: np.ndarray, pairs: np.ndarray, start: np.ndarray, count: np.ndarray,
+            geo: "_Geometry", reach: float, angle_deg: float, chunk: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Chunks of (a, b, pair index) combinations, a superset of those passing the tests at ``reach`` and
+        ``angle_deg`` for the current ``segments`` (never splitting a pair across chunks)."""
+        if not self._valid(segments, scan, pairs, geo, reach, angle_deg):
+            loose_sin = np.sin(np.deg2rad(min(angle_deg + self.slack_deg, 90.0)))
+            chunks = [_near(geo, a, b, pid, loose_sin, reach + self.slack_m)
+                      for a, b, pid in _combinations(pairs, start, count, chunk)]
+            self._built = (pairs.copy(), scan.copy(), angle_deg, reach, segments.copy(), geo.unit.copy(), chunks)
+            self.builds += 1
+        return self._built[6]
+
+    def _valid(self, segments, scan, pairs, geo, reach, angle_deg) -> bool:
+        if self._built is None:
+            return False
+        b_pairs, b_scan, b_angle, b_reach, b_segments, b_unit, _ = self._built
+        if (b_angle != angle_deg or reach > b_reach or b_pairs.shape != pairs.shape or b_scan.shape != scan.shape
+                or not np.array_equal(b_pairs, pairs) or not np.array_equal(b_scan, scan)):
+            return False
+        moved = np.max(np.abs(segments - b_segments)) * np.sqrt(2) if len(segments) else 0.0
+        turned = np.max(np.abs(geo.unit[:, 0] * b_unit[:, 1] - geo.unit[:, 1] * b_unit[:, 0])) if len(segments) else 0.0
+        return bool(moved <= self.slack_m / 2 and turned <= np.sin(np.deg2rad(self.slack_deg / 2)))
+
+
+def _near(geo: "_Geometry", a: np.ndarray, b: np.ndarray, pid: np.ndarray, sin_max: float, reach: float):
+    """The combinations (a, b, pid) whose segments are within ``asin(sin_max)`` of parallel and whose circles
+    (plus ``reach``) touch."""
+    ok = np.abs(geo.unit[a, 0] * geo.unit[b, 1] - geo.unit[a, 1] * geo.unit[b, 0]) <= sin_max
+    a, b, pid = a[ok], b[ok], pid[ok]
+    d = geo.mid[a] - geo.mid[b]
+    ok = np.hypot(d[:, 0], d[:, 1]) <= geo.half[a] + geo.half[b] + reach
+    return a[ok], b[ok], pid[ok]
+
+
 def segment_matches(segments: np.ndarray, scan: np.ndarray, pairs: np.ndarray, gate: float, angle_deg: float,
-                    margin: float, min_overlap: float, chunk: int = 2_000_000) -> Matches:
+                    margin: float, min_overlap: float, chunk: int = 2_000_000,
+                    candidates: MatchCandidates | None = None) -> Matches:
     """Match the segments of every scan pair in both directions.
 
     Args:
@@ -127,6 +181,8 @@ def segment_matches(segments: np.ndarray, scan: np.ndarray, pairs: np.ndarray, g
         angle_deg: ``a`` and ``b`` are within this angle of parallel.
         margin: ``a`` may project this far beyond ``b``'s endpoints (m).
         min_overlap: shorter overlaps are not matched (m).
+        candidates: reuse the combinations worth testing between calls (the same matches, faster while
+            the segments move little); None searches every combination.
     """
     segments = np.asarray(segments, float).reshape(-1, 4)
     if len(pairs) == 0 or len(segments) == 0:
@@ -138,14 +194,14 @@ def segment_matches(segments: np.ndarray, scan: np.ndarray, pairs: np.ndarray, g
     geo = _Geometry(segments)
     sin_max = np.sin(np.deg2rad(angle_deg))
     reach = gate + margin
+    if candidates is not None:
+        chunks = candidates.get(segments, np.asarray(scan), pairs, start, count, geo, reach, angle_deg, chunk)
+    else:
+        chunks = (c for c in _combinations(pairs, start, count, chunk))
     parts = []
-    for a, b, pid in _combinations(pairs, start, count, chunk):
+    for a, b, pid in chunks:
         # Cheap tests first: near-parallel, and the two segments' circles (plus the gate) touch.
-        ok = np.abs(geo.unit[a, 0] * geo.unit[b, 1] - geo.unit[a, 1] * geo.unit[b, 0]) <= sin_max
-        a, b, pid = a[ok], b[ok], pid[ok]
-        d = geo.mid[a] - geo.mid[b]
-        ok = np.hypot(d[:, 0], d[:, 1]) <= geo.half[a] + geo.half[b] + reach
-        a, b, pid = a[ok], b[ok], pid[ok]
+        a, b, pid = _near(geo, a, b, pid, sin_max, reach)
         for src, tgt, key in ((a, b, 2 * pid), (b, a, 2 * pid + 1)):      # a on b's line, and b on a's
             found = _overlaps(geo, src, tgt, key, gate, margin, min_overlap)
             if found is not None:

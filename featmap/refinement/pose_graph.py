@@ -21,7 +21,7 @@ from pydantic import Field
 from featmap.refinement.base import (RefinementInput, RefinementMethod, RefinementResult, apply_corrections,
                                      correct_segments, interpolate_corrections, keyframes)
 from featmap.refinement.loops import LoopConfig, Loops, find_loops, loop_errors, loop_terms
-from featmap.refinement.matching import Matches, scan_pairs, segment_matches
+from featmap.refinement.matching import Matches, MatchCandidates, scan_pairs, segment_matches
 from featmap.refinement.terms import (AlignmentConfig, consistency, keep_if_better, normal_equations,
                                      solve_normal_equations)
 
@@ -41,7 +41,8 @@ def refine_pose_graph(inp: RefinementInput, config: PoseGraphConfig = PoseGraphC
         return RefinementResult(np.zeros((0, 3)), inp.poses.copy(), stats={"applied": False})
     keys = keyframes(inp.poses, config.keyframe_distance_m, config.keyframe_angle_deg)
     sub = inp.subset(keys)
-    c, iterations, matches, converged, step = _solve(sub, config, np.zeros((sub.n_scans, 3)), Loops.empty())
+    candidates = MatchCandidates()           # the segment combinations worth testing, while the poses move little
+    c, iterations, matches, converged, step = _solve(sub, config, np.zeros((sub.n_scans, 3)), Loops.empty(), candidates)
     loops = find_loops(sub, c, config.loops)
     found = len(loops)
     pairs = scan_pairs(sub.anchors, config.pair_radius_m)
@@ -53,13 +54,13 @@ def refine_pose_graph(inp: RefinementInput, config: PoseGraphConfig = PoseGraphC
         closed = _close_loops(sub, config, c, loops)
         gates = config.gates_m
         first = max([k for k, g in enumerate(gates) if g >= widest] or [0])
-        closed, more, m_loops, conv_loops, step_loops = _solve(sub, config, closed, loops, gates[first:])
-        if consistency(sub, closed, pairs, config) <= consistency(sub, c, pairs, config):
+        closed, more, m_loops, conv_loops, step_loops = _solve(sub, config, closed, loops, candidates, gates[first:])
+        if consistency(sub, closed, pairs, config, candidates) <= consistency(sub, c, pairs, config, candidates):
             c, matches, converged, step = closed, m_loops, conv_loops, step_loops
             iterations += more
         else:
             loops = Loops.empty(loops.candidates)
-    applied, check = keep_if_better(sub, c, pairs, config)
+    applied, check = keep_if_better(sub, c, pairs, config, candidates)
     full = interpolate_corrections(inp.anchors, keys, c) if applied else np.zeros((inp.n_scans, 3))
     return RefinementResult(corrections=full, poses=apply_corrections(inp.poses, full), iterations=iterations,
                             matches=matches, converged=converged,
@@ -78,7 +79,8 @@ def _close_loops(inp: RefinementInput, config: PoseGraphConfig, c: np.ndarray, l
     return c
 
 
-def _solve(inp: RefinementInput, config: PoseGraphConfig, c: np.ndarray, loops: Loops, gates=None):
+def _solve(inp: RefinementInput, config: PoseGraphConfig, c: np.ndarray, loops: Loops,
+           candidates: MatchCandidates | None = None, gates=None):
     c = c.copy()
     order = np.argsort(inp.scan, kind="stable")
     seg0, scan = inp.segments[order], inp.scan[order]
@@ -89,7 +91,8 @@ def _solve(inp: RefinementInput, config: PoseGraphConfig, c: np.ndarray, loops: 
         pairs = scan_pairs(anchors0 + c[:, :2], config.pair_radius_m)
         for _ in range(config.iterations_per_gate):
             current = correct_segments(seg0, scan, anchors0, c)
-            m = segment_matches(current, scan, pairs, gate, config.angle_deg, config.margin_m, config.min_overlap_m)
+            m = segment_matches(current, scan, pairs, gate, config.angle_deg, config.margin_m, config.min_overlap_m,
+                                candidates=candidates)
             H, g = normal_equations(inp, c, m, gate, config)
             if len(loops):
                 H_loop, g_loop = loop_terms(inp, c, loops, config.loops)

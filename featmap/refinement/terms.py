@@ -31,7 +31,7 @@ from scipy.sparse.linalg import spsolve
 
 from featmap.config import Section
 from featmap.refinement.base import RefinementInput, correct_segments
-from featmap.refinement.matching import Matches, segment_matches
+from featmap.refinement.matching import Matches, MatchCandidates, segment_matches
 
 FIXED_SIGMA = 1e-6
 """Standard deviation (metres, radians) that holds the first scan in place when there is no absolute prior."""
@@ -99,16 +99,6 @@ def normal_equations(inp: RefinementInput, c: np.ndarray, m: Matches, gate: floa
     scale = max(config.robust_scale_m, config.robust_gate_fraction * gate)
     rows, cols, vals, res, wts = [], [], [], [], []
     n_rows = 0
-    # Scan matching.
-    if len(m):
-        r, w, jac = _match_rows(m, anchors, config, scale)
-        idx = np.column_stack([3 * m.source + k for k in range(3)] + [3 * m.target + k for k in range(3)])
-        rows.append(np.repeat(np.arange(len(m)), 6))
-        cols.append(idx.ravel())
-        vals.append(jac.ravel())
-        res.append(r)
-        wts.append(w)
-        n_rows += len(m)
     # Absolute prior, or the first scan held fixed.
     if config.absolute_sigma_m is not None or config.absolute_sigma_deg is not None:
         sig = np.array([config.absolute_sigma_m or np.inf, config.absolute_sigma_m or np.inf,
@@ -165,16 +155,43 @@ def normal_equations(inp: RefinementInput, c: np.ndarray, m: Matches, gate: floa
     r = np.concatenate(res)
     w = np.concatenate(wts)
     JtW = J.T.multiply(w).tocsr()
-    return (JtW @ J).tocsc(), JtW @ r
+    H, g = JtW @ J, JtW @ r
+    if len(m):                                              # scan matching
+        H_match, g_match = _match_normal_equations(m, anchors, config, scale, F)
+        H, g = H + H_match, g + g_match
+    return H.tocsc(), g
 
 
-def consistency(inp: RefinementInput, corrections: np.ndarray, pairs: np.ndarray, config: AlignmentConfig) -> float:
+def _match_normal_equations(m: Matches, anchors: np.ndarray, config: AlignmentConfig, scale: float,
+                            F: int) -> tuple[sparse.csr_matrix, np.ndarray]:
+    """The matches' share of (H (3F, 3F), g (3F,)): each residual's 6 x 6 outer product summed per (source,
+    target) scan pair first (a few per scan instead of hundreds of thousands of rows)."""
+    r, w, jac = _match_rows(m, anchors, config, scale)
+    pair, inv = np.unique(m.source * F + m.target, return_inverse=True)
+    n = len(pair)
+    blocks = np.empty((n, 6, 6))
+    for p in range(6):
+        wj = w * jac[:, p]
+        for q in range(p, 6):
+            blocks[:, p, q] = blocks[:, q, p] = np.bincount(inv, wj * jac[:, q], n)
+    grad = np.column_stack([np.bincount(inv, w * jac[:, p] * r, n) for p in range(6)])
+    src, tgt = pair // F, pair % F
+    idx = np.column_stack([3 * src + k for k in range(3)] + [3 * tgt + k for k in range(3)])   # (n, 6)
+    H = sparse.csr_matrix((blocks.ravel(), (np.repeat(idx, 6, axis=1).ravel(), np.tile(idx, (1, 6)).ravel())),
+                          shape=(3 * F, 3 * F))
+    return H, np.bincount(idx.ravel(), grad.ravel(), 3 * F)
+
+
+def consistency(inp: RefinementInput, corrections: np.ndarray, pairs: np.ndarray, config: AlignmentConfig,
+                candidates: MatchCandidates | None = None) -> float:
     """Mean distance (metres) between matched segments of the scan ``pairs`` after ``corrections``
-    (matches within the first gate; NaN when nothing matches): how well the scans agree with each other."""
+    (matches within the first gate; NaN when nothing matches): how well the scans agree with each other.
+    ``candidates``: see :func:`featmap.refinement.matching.segment_matches`."""
     order = np.argsort(inp.scan, kind="stable")
     scan = inp.scan[order]
     current = correct_segments(inp.segments[order], scan, inp.anchors, corrections)
-    m = segment_matches(current, scan, pairs, config.gates_m[0], config.angle_deg, config.margin_m, config.min_overlap_m)
+    m = segment_matches(current, scan, pairs, config.gates_m[0], config.angle_deg, config.margin_m, config.min_overlap_m,
+                        candidates=candidates)
     return float(np.mean(np.abs(m.residuals()))) if len(m) else float("nan")
 
 
@@ -188,14 +205,14 @@ def correction_size(corrections: np.ndarray) -> np.ndarray:
 
 
 def keep_if_better(inp: RefinementInput, corrections: np.ndarray, pairs: np.ndarray,
-                   config: AlignmentConfig) -> tuple[bool, dict]:
+                   config: AlignmentConfig, candidates: MatchCandidates | None = None) -> tuple[bool, dict]:
     """Whether to apply ``corrections``: only when they make the scans agree at least ``min_improvement``
     times better than the input poses, and move some scan by at least ``min_correction_m``. Otherwise the
     input poses are kept: exact poses stay exact, instead of absorbing extraction noise (scans that see a
     single wall can be made to agree perfectly by moving them a few mm) or extraction bias (the agreement
     barely improves while the poses wander). Returns (apply, numbers for the record)."""
-    before = consistency(inp, np.zeros_like(corrections), pairs, config)
-    after = consistency(inp, corrections, pairs, config)
+    before = consistency(inp, np.zeros_like(corrections), pairs, config, candidates)
+    after = consistency(inp, corrections, pairs, config, candidates)
     largest = float(correction_size(corrections).max()) if len(corrections) else 0.0
     applied = bool(before >= config.min_improvement * after and largest >= config.min_correction_m)
     return applied, {"applied": applied, "residual_before_mm": round(1000 * before, 3),

@@ -55,3 +55,35 @@ def test_matches_keep_the_nearest_segment_of_each_scan():
     m = segment_matches(segs, np.array([0, 1, 1]), np.array([[0, 1]]), 0.5, 5, 0.0, 0.5)
     from_0 = m.source == 0
     assert from_0.sum() == 2 and np.allclose(np.abs(m.residuals()[from_0]), 0.05)
+
+
+def _sorted_matches(m):
+    rows = np.column_stack([m.source, m.target, m.point, m.base, m.normal, m.weight])
+    return rows[np.lexsort(rows.T[::-1])]
+
+
+def test_reused_candidates_give_the_same_matches_as_a_fresh_search():
+    """While the scans move less than half the slack, the candidates are built once and the matches equal a
+    fresh search's; a larger move rebuilds them (and still matches a fresh search)."""
+    from featmap.refinement.base import correct_segments
+    from featmap.refinement.matching import MatchCandidates
+
+    rng = np.random.default_rng(5)
+    n_scans, per = 12, 30
+    scan = np.repeat(np.arange(n_scans), per)
+    direction = rng.choice([0.0, np.pi / 2, 0.3], len(scan)) + rng.normal(0, 0.01, len(scan))
+    mid = rng.uniform(-15, 15, (len(scan), 2))
+    half = rng.uniform(0.5, 4, len(scan))[:, None] * np.column_stack([np.cos(direction), np.sin(direction)])
+    segments = np.column_stack([mid - half, mid + half])
+    anchors = np.cumsum(rng.normal(0, 1, (n_scans, 2)), axis=0)
+    pairs = scan_pairs(anchors, 40.0)
+    candidates = MatchCandidates(slack_m=0.5, slack_deg=1.0)
+    for step, (shift, turn, gate) in enumerate([(0.0, 0.0, 1.0), (0.1, 0.003, 1.0), (0.12, 0.004, 0.5),
+                                                (0.6, 0.0, 0.5), (0.6, 0.02, 0.25)]):
+        c = np.column_stack([rng.uniform(-shift, shift, (n_scans, 2)) / np.sqrt(2), rng.uniform(-turn, turn, n_scans)])
+        current = correct_segments(segments, scan, anchors, c)
+        fresh = segment_matches(current, scan, pairs, gate, 5.0, 0.5, 0.3)
+        reused = segment_matches(current, scan, pairs, gate, 5.0, 0.5, 0.3, candidates=candidates)
+        assert fresh.n_pairs > 20 and reused.n_pairs == fresh.n_pairs, step
+        assert np.array_equal(_sorted_matches(reused), _sorted_matches(fresh)), step
+        assert candidates.builds == (1 if step < 3 else step - 1), step
