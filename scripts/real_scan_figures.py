@@ -66,7 +66,7 @@ def main() -> None:
         fig.tight_layout()
         fig.savefig(args.out / f"{name}.png", dpi=110)
         plt.close(fig)
-        missed = [w.name for w, f in zip(wall_list.walls, score.found) if not f]
+        missed = [f"{w.name} ({c:.2f} covered)" for w, f, c in zip(wall_list.walls, score.found, score.coverage) if not f]
         rows.append((scan, len(points), len(result), int(score.found.sum()), len(score.found), score.n_clutter,
                      score.n_unlisted, ms, "; ".join(missed)))
     header = ("| scan | points | segments | walls found | on clutter | unlisted | ms | missed |\n"

@@ -34,7 +34,8 @@ def scan_key(points: np.ndarray, extractor: Extractor, section) -> str:
     h = hashlib.blake2b(digest_size=20)
     pts = np.ascontiguousarray(points)
     h.update(f"{pts.dtype.str}{pts.shape}".encode())
-    h.update(memoryview(pts).cast("B"))
+    if pts.size:                                  # (a scan with no return hashes its dtype and shape alone)
+        h.update(memoryview(pts).cast("B"))
     h.update(json.dumps({"extractor": extractor.name, "version": extractor.version,
                          "config": section.model_dump(mode="json")}, sort_keys=True).encode())
     return h.hexdigest()

@@ -30,9 +30,17 @@ def test_paper_preset_is_the_published_method():
 
 def test_a_2d_log_runs_through_the_pipeline_with_the_2d_preset(tmp_path):
     """``featmap run --carmen`` on a synthetic log: the 2D extractor, the indoor preset, the truth-free
-    metric in metrics.json, no WGS84 output; every method maps the room without a line across the door."""
+    metric in metrics.json, no WGS84 output; every method maps the room without a line across the door.
+    Two scans (one of them the last) saw nothing (every beam at max range): they have no segments."""
     path = tmp_path / "room.log"
     write_room_log(path, np.random.default_rng(0))
+    lines = path.read_text().splitlines()
+    flaser = [k for k, line in enumerate(lines) if line.startswith("FLASER")]
+    for k in (flaser[10], flaser[-1]):
+        fields = lines[k].split()
+        fields[2:182] = ["81.83"] * 180
+        lines[k] = " ".join(fields)
+    path.write_text("\n".join(lines) + "\n")
     res = CliRunner().invoke(app, ["run", "--carmen", str(path), "--out", str(tmp_path / "run"),
                                    "--cache-dir", str(tmp_path / "c"), "--workers", "1"])
     assert res.exit_code == 0, res.output
@@ -48,7 +56,9 @@ def test_a_2d_log_runs_through_the_pipeline_with_the_2d_preset(tmp_path):
         fused, _ = read_fused_csv(out / f"fused_{method}.csv")
         on_north = [s for s in fused if abs(s[1] - 8) < 0.05 and abs(s[3] - 8) < 0.05]
         assert on_north and all(max(s[0], s[2]) <= 5.55 or min(s[0], s[2]) >= 6.45 for s in on_north), method
-    assert read_segments_csv(out / "segments.csv").extra.keys() == {"n_points", "rms"}
+    segments = read_segments_csv(out / "segments.csv")
+    assert segments.extra.keys() == {"n_points", "rms"}
+    assert {10, 59} - set(segments.scan.tolist()) == {10, 59} and len(set(segments.scan.tolist())) == 58
 
 
 def test_the_paper_preset_keeps_mean_shifts_published_weakness(tmp_path):

@@ -24,6 +24,10 @@ def test_the_key_follows_points_config_and_extractor_version():
     from dataclasses import replace
 
     assert scan_key(POINTS, replace(EXTRACTOR, version=EXTRACTOR.version + 1), RansacPlanesConfig()) != key
+    # a scan with no return (every beam at max range) has a key of its own
+    empty = scan_key(np.zeros((0, 4), np.float32), EXTRACTOR, RansacPlanesConfig())
+    assert empty == scan_key(np.zeros((0, 4), np.float32), EXTRACTOR, RansacPlanesConfig())
+    assert empty not in (key, scan_key(np.zeros((0, 3), np.float32), EXTRACTOR, RansacPlanesConfig()))
 
 
 def test_entries_round_trip_and_bad_entries_are_discarded(tmp_path):
