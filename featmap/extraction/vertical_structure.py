@@ -235,6 +235,8 @@ class Cells:
 
     def points_at(self, xy: np.ndarray) -> np.ndarray:
         """(K,) low non-ground points in the ``cell_m`` cell under each (K, 2) position."""
+        if len(self.grid_keys) == 0:                # no low non-ground point anywhere
+            return np.zeros(len(xy), np.int64)
         size, i0, j0, width = self.grid_origin[0], self.grid_origin[1], self.grid_origin[2], self.grid_origin[3]
         ci = np.floor(xy[:, 0] / size).astype(np.int64) - i0
         cj = np.floor(xy[:, 1] / size).astype(np.int64) - j0
@@ -923,6 +925,8 @@ def _untilted(offset: np.ndarray, z: np.ndarray, piece: np.ndarray, n: int, max_
 def _points_behind(cells: Cells, a: np.ndarray, b: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
     """(n,) non-ground points in the band from ``inlier_tolerance_m`` to ``BEHIND_M`` behind each (n, 2)
     a-b line, on the side away from the sensor (a solid wall hides that band; foliage does not)."""
+    if len(cells.grid_keys) == 0:                   # no low non-ground point anywhere: nothing behind any line
+        return np.zeros(len(a))
     step = cells.grid_origin[0]
     length = np.hypot(*(b - a).T)
     u = (b - a) / np.maximum(length, 1e-9)[:, None]

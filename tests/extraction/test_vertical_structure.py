@@ -264,3 +264,16 @@ def test_timings_per_stage():
     timings: dict[str, float] = {}
     extract_vertical_structure(cast_scan([building(20, -10, 35, 10)]), timings=timings)
     assert set(timings) == {"crop", "ground", "level", "cells", "lines", "pieces", "walls"}
+
+
+def test_a_scan_whose_structure_is_all_high_up_gives_its_wall():
+    """Only the upper part of a tall far facade is seen (a 16-beam sensor driving away from it): no
+    non-ground return is low enough to count as seen through a line (it used to fail on that); the facade,
+    long and floating, is one wall."""
+    rng = np.random.default_rng(0)
+    gx, gy = np.meshgrid(np.linspace(-40, 40, 240), np.linspace(-40, 40, 240))
+    ground = np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, -1.73)])
+    y, z = np.meshgrid(np.linspace(-10, 10, 200), np.linspace(0.8, 6.3, 12))
+    wall = np.column_stack([np.full(y.size, 30.0) + rng.normal(0, 0.02, y.size), y.ravel(), z.ravel()])
+    result = extract_vertical_structure(np.concatenate([ground, wall]))
+    assert len(result) == 1 and on_line(result.segments[0], [30, -10], [30, 10], 0.05)
