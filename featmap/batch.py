@@ -639,7 +639,7 @@ def merge_task(run_dirs: list[tuple[str, str]], out: str, methods: tuple[str, ..
                 if d.geo_frame is not None and inputs.frame is not None:
                     alone = reproject_segments(alone, d.geo_frame.frame(), inputs.frame)
                 drive_scores[run.name][d.name] = evaluator.score(ref, alone)
-    with RunFolder(out) as folder:
+    with RunFolder(out, marker="merged.json") as folder:
         write_segments_csv(folder.tmp / "segments.csv", table)
         for run in runs:
             names = [";".join(inputs.names[i] for i in p) for p in provenance[run.name]]

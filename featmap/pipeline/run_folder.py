@@ -3,7 +3,9 @@
 A run writes into a temporary sibling (``.NAME.partial-PID``) and swaps it in place of ``--out`` at the
 end, so a crash, a full disk or Ctrl-C leaves the previous run folder as it was (never a mix of two
 runs). A lock file beside it (``.NAME.lock``) makes a second run into the same folder fail at once.
-Opening checks that the folder can be written, so a bad ``--out`` fails before any work.
+Opening checks that the folder can be written, and that it is empty or a folder this command wrote
+before (it holds the ``marker`` file): a run never replaces a folder of other files (the input log
+beside it, a user's notes) nor the current folder, so a bad ``--out`` fails before any work.
 """
 
 from __future__ import annotations
@@ -30,8 +32,9 @@ class RunFolder:
     Leaving the block without ``commit`` (an error) removes the temporary folder and keeps ``out`` as it was.
     """
 
-    def __init__(self, out: str | Path):
+    def __init__(self, out: str | Path, marker: str = "metrics.json"):
         self.out = Path(out)
+        self.marker = marker
         self.tmp: Path | None = None
         self._lock_fd: int | None = None
 
@@ -39,6 +42,14 @@ class RunFolder:
         out = self.out
         if out.exists() and not out.is_dir():
             raise RunFolderError(f"--out {out}: exists and is not a folder")
+        if out.is_dir():
+            resolved, here = out.resolve(), Path.cwd().resolve()
+            if resolved == here or resolved in here.parents:
+                raise RunFolderError(f"--out {out}: is the current folder (or holds it); a run replaces its "
+                                     "--out folder whole: give a new or empty folder")
+            if any(out.iterdir()) and not (out / self.marker).is_file():
+                raise RunFolderError(f"--out {out}: holds other files and is not a featmap output folder (no "
+                                     f"{self.marker}); a run replaces its --out folder whole: give a new or empty folder")
         parent = out.parent if str(out.parent) else Path(".")
         try:
             parent.mkdir(parents=True, exist_ok=True)

@@ -62,3 +62,32 @@ def test_bad_out_paths(tmp_path):
                 pass
     finally:
         ro.chmod(0o755)
+
+
+def test_a_folder_of_other_files_or_the_current_folder_is_never_replaced(tmp_path, monkeypatch):
+    """A run replaces its --out whole: a folder holding anything but an earlier run (the input log, notes)
+    or the folder the user stands in is refused before any work, and left as it was."""
+    out = tmp_path / "logs"
+    out.mkdir()
+    (out / "intel.log").write_text("FLASER ...")
+    with pytest.raises(RunFolderError, match=r"--out .*logs: holds other files and is not a featmap output folder"):
+        with RunFolder(out):
+            pass
+    assert [p.name for p in out.iterdir()] == ["intel.log"]
+    monkeypatch.chdir(out)
+    with pytest.raises(RunFolderError, match=r"--out \.: is the current folder"):
+        with RunFolder("."):
+            pass
+    with pytest.raises(RunFolderError, match=r"is the current folder \(or holds it\)"):
+        with RunFolder(tmp_path):
+            pass
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with RunFolder(empty) as folder:                                # an empty folder is fine
+        (folder.tmp / "metrics.json").write_text("{}")
+        folder.commit()
+    with pytest.raises(RunFolderError, match=r"no merged.json"):   # a run folder is no batch's merged map
+        with RunFolder(empty, marker="merged.json"):
+            pass
+    with RunFolder(empty) as folder:                                # and a run may replace a run
+        folder.commit()
