@@ -56,10 +56,11 @@ def local_map_centres(run: FigureInputs, results: dict, n: int = 4) -> np.ndarra
     traj = run.trajectory
     if len(traj) == 0:
         segs = run.segments.segments
-        return np.tile(0.5 * (segs[:, :2] + segs[:, 2:]).mean(0), (n, 1))
-    fused = results["proposed" if "proposed" in results else next(iter(results))].segments
+        centre = 0.5 * (segs[:, :2] + segs[:, 2:]).mean(0) if len(segs) else np.zeros(2)
+        return np.tile(centre, (n, 1))
+    fused = results["proposed" if "proposed" in results else next(iter(results))].segments if results else np.zeros((0, 4))
     mids = 0.5 * (fused[:, :2] + fused[:, 2:]) if len(fused) else np.zeros((0, 2))
-    chunks = np.array_split(np.arange(len(traj)), n)
+    chunks = [idx for idx in np.array_split(np.arange(len(traj)), min(n, len(traj)))]   # fewer scans: fewer maps
     centres = []
     for idx in chunks:
         cand = traj[idx]
@@ -82,7 +83,7 @@ def _in_box(segments: np.ndarray, centre: np.ndarray, half: float) -> np.ndarray
 def fig_feature_circles(run: FigureInputs, out: Path) -> list[Path]:
     table = run.segments
     scans, counts = np.unique(table.scan, return_counts=True)
-    k = int(scans[np.argmax(counts)])
+    k = int(scans[np.argmax(counts)]) if len(scans) else 0              # the scan with most segments (none: empty)
     nxt = scans[scans > k]
     k2 = int(nxt[0]) if len(nxt) else k
     paths = []

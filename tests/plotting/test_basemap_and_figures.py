@@ -127,3 +127,30 @@ def test_figures_without_tiles_still_appear(case1_drive, tmp_path):
     with pytest.warns(BasemapWarning):
         path = fig_tile_overlays(inputs, results, local_map_centres(inputs, results), tmp_path)
     assert path.stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("frames", [slice(0, 3), slice(38, 40)])
+def test_figures_of_runs_with_few_scans_or_no_segments(case1_drive, tmp_path, frames):
+    """Fewer scans than local maps (3 scans), and a run without a single segment (an extraction that asks
+    for more returns than any wall has): every figure is still drawn (empty where there is nothing)."""
+    from typer.testing import CliRunner
+
+    from featmap.cli import app
+    from featmap.datasets import KittiRawDataset
+    from featmap.io.segments_csv import read_segments_csv
+    from featmap.pipeline import MappingPipeline, SegmentStore, load_config
+
+    ds = KittiRawDataset(case1_drive.root, case1_drive.drive, frames)
+    cfg = load_config(None, ["output.tile_source=http://127.0.0.1:9/{z}/{x}/{y}.png", "output.tile_timeout_s=1",
+                             "extraction.vertical_structure.min_points=100000"] if frames.start else
+                      ["output.tile_source=http://127.0.0.1:9/{z}/{x}/{y}.png", "output.tile_timeout_s=1"])
+    with pytest.warns(BasemapWarning):
+        MappingPipeline(cfg, ["proposed", "density"], SegmentStore(tmp_path / "c")).run(ds, tmp_path / "run")
+    if frames.start:
+        assert len(read_segments_csv(tmp_path / "run" / "segments.csv")) == 0
+    res = CliRunner().invoke(app, ["figures", str(tmp_path / "run"), "--set", "output.tile_timeout_s=1"])
+    assert res.exit_code == 0, res.output
+    out = tmp_path / "run" / "figures"
+    for name in ("fig02_feature_circles_one_scan.png", "fig08_global_map.png", "fig10_local_maps_2d.png",
+                 "fig13_14_truth_vs_fused.png"):
+        assert (out / name).stat().st_size > 5000, name
