@@ -8,9 +8,12 @@ import numpy as np
 def fillet_polyline(waypoints: np.ndarray, radius: float, step: float = 0.2) -> np.ndarray:
     """Densify a polyline (K, 2) into points ~``step`` apart, replacing each corner by a circular arc.
 
-    The arc's tangent length is clamped to half of each adjacent leg, so short legs still work.
+    The arc's tangent length is clamped to half of each adjacent leg, so short legs still work. A
+    waypoint repeated (as OSM and GeoJSON routes often do) counts once.
     """
-    pts = np.asarray(waypoints, float)
+    pts = np.asarray(waypoints, float).reshape(-1, 2)
+    if len(pts) > 1:
+        pts = pts[np.concatenate([[True], np.hypot(*np.diff(pts, axis=0).T) > 1e-9])]
     out = [pts[0]]
     for k in range(1, len(pts) - 1):
         a, b, c = pts[k - 1], pts[k], pts[k + 1]

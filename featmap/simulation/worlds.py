@@ -208,7 +208,9 @@ def _check_object(path: str, index: int, raw) -> object:
 
 
 def _open_ring(points) -> list:
+    """The ring's vertices once each: a repeated vertex (OSM exports have them) and the closing one dropped."""
     points = [tuple(p) for p in points]
+    points = [p for k, p in enumerate(points) if k == 0 or p != points[k - 1]]
     return points[:-1] if len(points) > 1 and points[0] == points[-1] else points
 
 

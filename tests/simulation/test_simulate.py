@@ -163,3 +163,14 @@ def test_perturbed_poses_turn_about_the_body():
     assert np.allclose(out[:2, :2], [[0, -1], [1, 0]])
     plain = perturb_poses(T[None], np.array([[0.1, 0.2, np.pi / 2]]))[0]
     assert np.allclose(plain[:3, 3], [10.1, 0.2, 1.7])
+
+
+def test_a_repeated_waypoint_counts_once():
+    """Routes from OSM or GeoJSON often repeat a point: the drive is the same as without the repeat."""
+    from featmap.simulation.trajectory import fillet_polyline, sample_poses
+
+    route = np.array([[0, 0], [20, 0], [20, 20]], float)
+    repeated = np.array([[0, 0], [0, 0], [20, 0], [20, 0], [20, 20]], float)
+    assert np.array_equal(fillet_polyline(repeated, 8.0), fillet_polyline(route, 8.0))
+    positions, headings = sample_poses(repeated, 8.0, 8.0, 10.0)
+    assert np.isfinite(positions).all() and np.isfinite(headings).all() and len(positions) > 30

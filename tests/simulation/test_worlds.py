@@ -91,3 +91,19 @@ def test_bad_extends_is_one_line(tmp_path, text, match):
     (tmp_path / "loop.yaml").write_text(text)
     with pytest.raises(WorldError, match=match):
         load_world(tmp_path / "loop.yaml")
+
+
+def test_a_repeated_footprint_vertex_makes_no_zero_length_wall():
+    """OSM exports repeat vertices: each wall is still one edge, none of zero length."""
+    import numpy as np
+
+    from featmap.simulation.worlds import world_from_dict
+
+    def world(footprint):
+        return world_from_dict({"name": "w", "route": {"waypoints": [[-20, -5], [40, -5]]},
+                                "objects": [{"kind": "building", "footprint": footprint, "height": 8}]}, "w.yaml")
+
+    plain = building_edges(world([[0, 0], [20, 0], [20, 10], [0, 10]]))
+    repeated = building_edges(world([[0, 0], [20, 0], [20, 0], [20, 10], [0, 10], [0, 10], [0, 0]]))
+    assert len(repeated) == len(plain) == 4
+    assert all(np.hypot(*(np.asarray(e["q"]) - e["p"])) > 1 for e in repeated)
