@@ -34,7 +34,10 @@ def _frame_for_csv(fused: Path, origin: str | None) -> GeoFrame | None:
 
 
 def evaluate_file(fused: str | Path, truth: str | Path, origin: str | None = None) -> dict:
-    """Metrics of ``fused`` (.csv or .geojson) against ``truth`` (footprints .geojson or a truth/ folder)."""
+    """Metrics of ``fused`` (.csv or .geojson) against ``truth`` (footprints .geojson or a truth/ folder).
+
+    A map in a run folder scored against that run's own truth/ folder is scored on the walls of the frames
+    the run processed (as the run itself was), not on the whole drive's."""
     from featmap.io.geojson import first_position, read_segments_geojson
     from featmap.io.segments_csv import read_fused_csv
 
@@ -51,5 +54,21 @@ def evaluate_file(fused: str | Path, truth: str | Path, origin: str | None = Non
         segments, _ = read_fused_csv(fused)
         if frame is None and truth.is_file():
             raise FeatmapError(f"{fused}: a CSV is in a local frame; give --origin LAT,LON or keep it next to its metrics.json")
-    gt = load_simulator_truth(truth, frame) if truth.is_dir() else truth_from_footprints(truth, frame)
+    gt = (load_simulator_truth(truth, frame, _frames_of_run(fused, truth)) if truth.is_dir()
+          else truth_from_footprints(truth, frame))
     return truth_metrics(segments, gt)
+
+
+def _frames_of_run(fused: Path, truth: Path) -> list[int] | None:
+    """The frames the run beside ``fused`` was made from, when it was scored against this ``truth`` folder
+    (a run of selected frames observed only part of the drive's walls); None: every frame."""
+    from featmap.io.run_metrics import read_run_metrics
+
+    metrics = fused.parent / "metrics.json"
+    if not metrics.exists():
+        return None
+    meta = read_run_metrics(metrics)
+    own = meta.reference_path("truth", fused.parent)
+    if own is None or own.resolve() != truth.resolve():
+        return None
+    return meta.source.frames_processed

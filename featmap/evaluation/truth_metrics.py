@@ -196,7 +196,7 @@ def vertex_error_sums(fused: np.ndarray, truth: GroundTruth, sample_wall: np.nda
                 assignment[f] = np.bincount(walls).argmax()
     out = {}
     for w, (lab_p, lab_q) in enumerate(truth.labels):
-        for label, point in ((lab_p, truth.walls[w, :2]), (lab_q, truth.walls[w, 2:])):
+        for label, point in ((str(lab_p), truth.walls[w, :2]), (str(lab_q), truth.walls[w, 2:])):
             if not label:
                 continue
             members = np.flatnonzero(assignment == w)

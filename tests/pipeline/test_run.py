@@ -147,6 +147,28 @@ def test_cli_evaluate_against_footprints(run_case1, case1_drive, tmp_path):
     assert res.exit_code == 0 and "precision" in res.output
 
 
+def test_cli_evaluate_scores_a_run_of_selected_frames_as_the_run_did(run_case1, case1_drive, tmp_path):
+    """A run of a few frames observed only part of the building: evaluate scores it against the walls of
+    those frames, as the run did (and against the whole drive's when the truth is not the run's own)."""
+    result = run_case1(frames=slice(37, 40))
+    truth = case1_drive.drive_dir / "truth"
+    res = runner.invoke(app, ["evaluate", str(tmp_path / "run" / "fused_proposed.csv"), "--truth", str(truth),
+                              "--out", str(tmp_path / "m.json")])
+    assert res.exit_code == 0, res.output
+    m, own = json.loads((tmp_path / "m.json").read_text()), result.metrics.primary_scores("proposed")
+    for key in ("observable_walls", "count_ratio", "precision", "recall"):
+        assert m[key] == pytest.approx(own[key]), key
+    assert "np.str_" not in res.output
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "fused_proposed.csv").write_text((tmp_path / "run" / "fused_proposed.csv").read_text())
+    res = runner.invoke(app, ["evaluate", str(elsewhere / "fused_proposed.csv"), "--truth", str(truth),
+                              "--origin", f"{result.metrics.geo_frame.lat0_deg},{result.metrics.geo_frame.lon0_deg}",
+                              "--out", str(tmp_path / "m2.json")])
+    assert res.exit_code == 0, res.output
+    assert json.loads((tmp_path / "m2.json").read_text())["observable_walls"] >= m["observable_walls"]
+
+
 def test_footprints_from_the_config_score_a_run(run_case1, case1_drive, tmp_path):
     footprints = case1_drive.drive_dir / "truth" / "footprints.geojson"
     metrics = run_case1([f"evaluation.footprints={footprints}"]).metrics
