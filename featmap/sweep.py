@@ -412,6 +412,10 @@ def run_sweep_file(spec_path: str | Path, out: str | Path, executor: Executor = 
     base_config = config_from_dict(base, str(base_path or "defaults"))
     combos, configs = expand(spec, base, str(spec_path))          # every combination validated first
     inputs = load_inputs(spec, spec_path, base_config, executor, reporter, cache_dir)
+    if inputs.reference is None:
+        reporter.warning(f"{spec_path}: nothing to score against (no ground truth for this input), so the sweep "
+                         "reports feature counts only; a 'dataset:' or 'drive:' source is scored with the truth-free "
+                         "metric against its scans' own points")
     identity = {"input": inputs.digest, "base": base_config.model_dump(mode="json"), "featmap": __version__}
     out = Path(out)
     rows = run_sweep(combos, configs, inputs, out, identity, executor, reporter)

@@ -189,3 +189,10 @@ grid:
         assert int(row["count"]) == metrics.methods[method].count
         for key in ("precision", "recall", "redundancy", "compression"):
             assert float(row[key]) == pytest.approx(scores[key], rel=1e-9), (method, key)
+    # a run's segments.csv carries no scan points: counts only, and the sweep says so
+    path2 = _write(tmp_path, f"input: {tmp_path / 'run' / 'segments.csv'}\nmethods: [proposed]\n"
+                             "grid:\n  fusion.proposed.eta_m: [0.2, 0.5]\n")
+    res = runner.invoke(app, ["sweep", str(path2), "--out", str(tmp_path / "out2"), "--workers", "1"])
+    assert res.exit_code == 0, res.output
+    assert "nothing to score against" in " ".join(res.output.split())
+    assert "precision" not in (tmp_path / "out2" / "sweep.csv").read_text().splitlines()[0]
