@@ -13,6 +13,7 @@ ignored setting.
 from __future__ import annotations
 
 import difflib
+import re
 from pathlib import Path
 from typing import Any, Iterable, TypeVar
 
@@ -83,6 +84,9 @@ def format_validation_error(error: ValidationError, source: str, model: type[Bas
     return f"{source}: " + "; ".join(parts)
 
 
+_EXPONENT_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+
+
 def parse_override(text: str) -> tuple[list[str], Any]:
     """Split ``"a.b.c=value"`` into its key path and YAML-parsed value."""
     if "=" not in text:
@@ -95,6 +99,8 @@ def parse_override(text: str) -> tuple[list[str], Any]:
         value = yaml.safe_load(raw) if raw.strip() else ""
     except yaml.YAMLError:
         value = raw
+    if isinstance(value, str) and _EXPONENT_NUMBER.fullmatch(raw.strip()):
+        value = float(raw)                          # YAML 1.1 reads an unquoted 1e6 (no dot) as a string
     return key.split("."), value
 
 

@@ -72,6 +72,10 @@ def test_types_are_strict(override, message):
     with pytest.raises(ConfigError, match=message):
         load_config(None, [override])
     assert load_config(None, ["fusion.proposed.delta_deg=5"]).fusion.proposed.delta_deg == 5.0   # int for float: fine
+    # an unquoted exponent is a number (YAML 1.1 alone would read 1e1 as a string); a quoted one is not
+    assert load_config(None, ["fusion.proposed.delta_deg=1e1"]).fusion.proposed.delta_deg == 10.0
+    with pytest.raises(ConfigError, match="should be a valid number"):
+        load_config(None, ["fusion.proposed.delta_deg='1e1'"])
 
 
 def test_config_file_that_is_not_utf8_or_is_a_folder(tmp_path):
