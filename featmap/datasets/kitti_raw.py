@@ -75,14 +75,16 @@ class KittiRawDataset(FrameSource):
         self.skip_bad_scans = skip_bad_scans
         check = self._check_layout()
         bad = set(check.bad_oxts) | set(check.bad_scans)
-        if bad and not skip_bad_scans:
-            frame = min(bad)
+        wanted = select_frames(check.n_frames, frames, drive)
+        bad_wanted = sorted(bad.intersection(wanted))      # a bad frame outside --frames does not matter
+        if bad_wanted and not skip_bad_scans:
+            frame = bad_wanted[0]
             raise DatasetError(check.bad_oxts.get(frame) or check.bad_scans[frame])
-        selected = [k for k in select_frames(check.n_frames, frames, drive) if k not in bad]
+        selected = [k for k in wanted if k not in bad]
         good = [k for k in range(check.n_frames) if k not in bad]
         if not good:
             raise DatasetError(f"{self.drive_dir}: no readable frame")
-        skipped = {k: check.bad_oxts.get(k) or check.bad_scans[k] for k in sorted(bad)}
+        skipped = {k: check.bad_oxts.get(k) or check.bad_scans[k] for k in bad_wanted}
         poor_gps = [k for k in check.poor_gps if k not in bad]
         self.notes = SourceNotes(skipped=skipped, flags={"poor_gps": poor_gps} if poor_gps else {})
         self.location = self.drive_dir.resolve()

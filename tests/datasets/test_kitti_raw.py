@@ -134,3 +134,15 @@ def test_parsers_on_real_kitti_files():
 
 def read_oxts_packet_text(text):
     return dict(zip(OXTS_FIELDS, [float(v) for v in text.split()]))
+
+
+def test_a_bad_scan_outside_the_selected_frames_does_not_matter(drive_copy):
+    root, drive = drive_copy
+    (root / drive[:10] / f"{drive}_sync" / "velodyne_points" / "data" / "0000000030.bin").write_bytes(b"")
+    ds = KittiRawDataset(root, drive, "0:10")
+    assert ds.frames == list(range(10)) and ds.notes.skipped == {}
+    assert np.allclose(ds.poses(), KittiRawDataset(root, drive, "0:10", skip_bad_scans=True).poses())
+    with pytest.raises(DatasetError, match="0000000030.bin: empty scan"):
+        KittiRawDataset(root, drive, "25:35")
+    ds = KittiRawDataset(root, drive, "25:35", skip_bad_scans=True)
+    assert list(ds.notes.skipped) == [30] and 30 not in ds.frames and len(ds) == 9
