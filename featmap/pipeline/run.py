@@ -46,25 +46,25 @@ def score_methods(runs: list[MethodRun], references: dict[str, tuple[Evaluator, 
             for run in runs}
 
 
-def prepare_references(context: EvaluationContext,
-                       evaluators: tuple[Evaluator, ...] = EVALUATORS) -> dict[str, tuple[Evaluator, Reference]]:
-    """The evaluators that found their reference, in order (the first is the run's primary score)."""
-    found = {}
+def found_references(context: EvaluationContext, evaluators: tuple[Evaluator, ...] = EVALUATORS):
+    """Yield (evaluator, reference) for the evaluators that find their reference, in order, each prepared
+    only when the one before it has been taken."""
     for evaluator in evaluators:
         reference = evaluator.prepare(context)
         if reference is not None:
-            found[evaluator.name] = (evaluator, reference)
-    return found
+            yield evaluator, reference
+
+
+def prepare_references(context: EvaluationContext,
+                       evaluators: tuple[Evaluator, ...] = EVALUATORS) -> dict[str, tuple[Evaluator, Reference]]:
+    """The evaluators that found their reference, in order (the first is the run's primary score)."""
+    return {evaluator.name: (evaluator, reference) for evaluator, reference in found_references(context, evaluators)}
 
 
 def primary_reference(context: EvaluationContext, evaluators: tuple[Evaluator, ...] = EVALUATORS
                       ) -> tuple[Evaluator, Reference] | None:
     """The first evaluator that finds its reference (the run's primary score), without preparing the others."""
-    for evaluator in evaluators:
-        reference = evaluator.prepare(context)
-        if reference is not None:
-            return evaluator, reference
-    return None
+    return next(found_references(context, evaluators), None)
 
 
 class MappingPipeline:

@@ -150,8 +150,8 @@ class MatchCandidates:
         if self._built is None:
             return False
         b_pairs, b_scan, b_angle, b_reach, b_segments, b_unit, _ = self._built
-        if (b_angle != angle_deg or reach > b_reach or b_pairs.shape != pairs.shape or b_scan.shape != scan.shape
-                or not np.array_equal(b_pairs, pairs) or not np.array_equal(b_scan, scan)):
+        if (b_angle != angle_deg or reach > b_reach or not np.array_equal(b_pairs, pairs)
+                or not np.array_equal(b_scan, scan)):
             return False
         moved = np.max(np.abs(segments - b_segments)) * np.sqrt(2) if len(segments) else 0.0
         turned = np.max(np.abs(geo.unit[:, 0] * b_unit[:, 1] - geo.unit[:, 1] * b_unit[:, 0])) if len(segments) else 0.0
@@ -197,7 +197,7 @@ def segment_matches(segments: np.ndarray, scan: np.ndarray, pairs: np.ndarray, g
     if candidates is not None:
         chunks = candidates.get(segments, np.asarray(scan), pairs, start, count, geo, reach, angle_deg, chunk)
     else:
-        chunks = (c for c in _combinations(pairs, start, count, chunk))
+        chunks = _combinations(pairs, start, count, chunk)
     parts = []
     for a, b, pid in chunks:
         # Cheap tests first: near-parallel, and the two segments' circles (plus the gate) touch.
