@@ -46,6 +46,7 @@ def refine_pose_graph(inp: RefinementInput, config: PoseGraphConfig = PoseGraphC
     loops = find_loops(sub, c, config.loops)
     found = len(loops)
     pairs = scan_pairs(sub.anchors, config.pair_radius_m)
+    agreement = None                         # how well the scans agree with the chosen corrections, once measured
     if found:
         # close the loops on the priors alone first (matches made while they were open would hold them
         # open), then match again from the coarsest gate that reaches the most open of them; keep the
@@ -55,12 +56,16 @@ def refine_pose_graph(inp: RefinementInput, config: PoseGraphConfig = PoseGraphC
         gates = config.gates_m
         first = max([k for k, g in enumerate(gates) if g >= widest] or [0])
         closed, more, m_loops, conv_loops, step_loops = _solve(sub, config, closed, loops, candidates, gates[first:])
-        if consistency(sub, closed, pairs, config, candidates) <= consistency(sub, c, pairs, config, candidates):
+        with_loops = consistency(sub, closed, pairs, config, candidates)
+        without = consistency(sub, c, pairs, config, candidates)
+        if with_loops <= without:
             c, matches, converged, step = closed, m_loops, conv_loops, step_loops
             iterations += more
+            agreement = with_loops
         else:
             loops = Loops.empty(loops.candidates)
-    applied, check = keep_if_better(sub, c, pairs, config, candidates)
+            agreement = without
+    applied, check = keep_if_better(sub, c, pairs, config, candidates, after=agreement)
     full = interpolate_corrections(inp.anchors, keys, c) if applied else np.zeros((inp.n_scans, 3))
     return RefinementResult(corrections=full, poses=apply_corrections(inp.poses, full), iterations=iterations,
                             matches=matches, converged=converged,

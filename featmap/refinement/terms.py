@@ -205,14 +205,17 @@ def correction_size(corrections: np.ndarray) -> np.ndarray:
 
 
 def keep_if_better(inp: RefinementInput, corrections: np.ndarray, pairs: np.ndarray,
-                   config: AlignmentConfig, candidates: MatchCandidates | None = None) -> tuple[bool, dict]:
+                   config: AlignmentConfig, candidates: MatchCandidates | None = None,
+                   after: float | None = None) -> tuple[bool, dict]:
     """Whether to apply ``corrections``: only when they make the scans agree at least ``min_improvement``
     times better than the input poses, and move some scan by at least ``min_correction_m``. Otherwise the
     input poses are kept: exact poses stay exact, instead of absorbing extraction noise (scans that see a
     single wall can be made to agree perfectly by moving them a few mm) or extraction bias (the agreement
-    barely improves while the poses wander). Returns (apply, numbers for the record)."""
+    barely improves while the poses wander). ``after``: the :func:`consistency` of ``corrections`` when the
+    caller measured it already. Returns (apply, numbers for the record)."""
     before = consistency(inp, np.zeros_like(corrections), pairs, config, candidates)
-    after = consistency(inp, corrections, pairs, config, candidates)
+    if after is None:                                   # (unless the caller measured it already)
+        after = consistency(inp, corrections, pairs, config, candidates)
     largest = float(correction_size(corrections).max()) if len(corrections) else 0.0
     applied = bool(before >= config.min_improvement * after and largest >= config.min_correction_m)
     return applied, {"applied": applied, "residual_before_mm": round(1000 * before, 3),
