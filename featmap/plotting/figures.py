@@ -60,7 +60,7 @@ def local_map_centres(run: FigureInputs, results: dict, n: int = 4) -> np.ndarra
         return np.tile(centre, (n, 1))
     fused = results["proposed" if "proposed" in results else next(iter(results))].segments if results else np.zeros((0, 4))
     mids = 0.5 * (fused[:, :2] + fused[:, 2:]) if len(fused) else np.zeros((0, 2))
-    chunks = [idx for idx in np.array_split(np.arange(len(traj)), min(n, len(traj)))]   # fewer scans: fewer maps
+    chunks = np.array_split(np.arange(len(traj)), min(n, len(traj)))        # fewer scans: fewer maps
     centres = []
     for idx in chunks:
         cand = traj[idx]
