@@ -160,8 +160,8 @@ def validated_xyz(points) -> np.ndarray:
     if not np.issubdtype(arr.dtype, np.number):
         raise FeatmapError(f"scan points: expected numbers, got {arr.dtype}")
     xyz = arr[:, :3].astype(np.float64)
-    finite = np.isfinite(xyz).all(axis=1)
-    if not finite.all():
+    if not np.isfinite(xyz).all():
+        finite = np.isfinite(xyz).all(axis=1)
         raise FeatmapError(f"scan points: {int((~finite).sum())} point(s) with NaN or inf coordinates")
     return xyz
 
@@ -250,7 +250,8 @@ class Cells:
 
 
 def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config: VerticalStructureConfig,
-                    sensor_xyz: np.ndarray | None = None, reach_from_m: float = 0.0, lines_only: bool = False) -> Cells:
+                    sensor_xyz: np.ndarray | None = None, reach_from_m: float = 0.0, lines_only: bool = False,
+                    sensor_rng: np.ndarray | None = None) -> Cells:
     """Group (M, 3) non-ground points (``height`` (M,) above the local ground) into ``cell_m`` cells and
     keep the cells whose highest point is at least ``cell_min_top_m`` up. The cells' positions and
     line moments come from their points at least ``line_min_height_m`` up; heights from all.
@@ -258,18 +259,22 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
     ``xyz`` may be levelled (see ``level_rotation``); ``sensor_xyz`` (M, 3) are then the same points in
     the sensor's own frame, where the beams' elevations (the top-beam test) are measured. Cells
     closer than ``reach_from_m`` never count as reaching the top beam. ``lines_only``: only what
-    placing lines needs (point_cell, count, centroid, scatter, top, bottom; the rest empty)."""
+    placing lines needs (point_cell, count, centroid, scatter, top, bottom; the rest empty).
+    ``sensor_rng`` (M,): the horizontal ranges of ``sensor_xyz``, if already known."""
     sensor_xyz = xyz if sensor_xyz is None else sensor_xyz
+    if sensor_rng is None and not lines_only:
+        sensor_rng = np.hypot(sensor_xyz[:, 0], sensor_xyz[:, 1])
     ci = np.floor(xyz[:, 0] / config.cell_m).astype(np.int64)
     cj = np.floor(xyz[:, 1] / config.cell_m).astype(np.int64)
     i0, j0, width = int(ci.min()), int(cj.min()), int(cj.max() - cj.min()) + 1
     key = (ci - i0) * width + (cj - j0)
-    _, cell = np.unique(key, return_inverse=True)
+    keys, cell = np.unique(key, return_inverse=True)
+    n_all = len(keys)
     if lines_only:
         grid_keys, grid_counts = np.zeros(0, np.int64), np.zeros(0, np.int64)
     else:
-        grid_keys, grid_counts = np.unique(key[height <= BEHIND_MAX_HEIGHT_M], return_counts=True)
-    n_all = int(cell.max()) + 1
+        grid_counts = np.bincount(cell[height <= BEHIND_MAX_HEIGHT_M], minlength=n_all)
+        grid_keys, grid_counts = keys[grid_counts > 0], grid_counts[grid_counts > 0]
     top = np.full(n_all, -np.inf)
     np.maximum.at(top, cell, height)
     candidate = top >= max(config.cell_min_top_m, config.line_min_height_m)
@@ -293,15 +298,14 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
                      grid_keys, grid_counts, (config.cell_m, i0, j0, width))
     # How close each cell comes to the top beam: the largest z - range * tan(top beam) (<= 0 below it),
     # and whether the sensor sees over it (a higher return farther away in the same direction).
-    sx, sy, sz = sensor_xyz[upper, 0], sensor_xyz[upper, 1], sensor_xyz[upper, 2]
-    rng = np.hypot(sx, sy)
+    sz, rng = sensor_xyz[upper, 2], sensor_rng[upper]
     reach = np.full(n, -np.inf)
     np.maximum.at(reach, c, sz - rng * tan_top)
     slope = np.full(n, -np.inf)
     np.maximum.at(slope, c, sz / np.maximum(rng, 1e-9))
     cell_range = np.hypot(centroid[:, 0], centroid[:, 1])
     margin = np.maximum(config.envelope_margin_m, cell_range * np.tan(np.deg2rad(config.envelope_margin_deg)))
-    over_slope, over_range, top_range, az_bin = highest_returns(sensor_xyz, tan_top, config)
+    over_slope, over_range, top_range, az_bin = highest_returns(sensor_xyz, tan_top, config, sensor_rng)
     b = az_bin(centroid)
     seen_over = (over_slope[b] > slope + 1e-4) & (over_range[b] > cell_range + SEEN_OVER_M)
     reaches = (reach >= -margin) & ~seen_over & (cell_range >= reach_from_m)
@@ -310,14 +314,15 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
                  grid_keys, grid_counts, (config.cell_m, i0, j0, width))
 
 
-def highest_returns(xyz: np.ndarray, tan_top: float, config: VerticalStructureConfig):
+def highest_returns(xyz: np.ndarray, tan_top: float, config: VerticalStructureConfig, rng: np.ndarray | None = None):
     """The highest return in each ``link_azimuth_deg / 2`` azimuth bin, among returns near the top beam.
 
     Returns (slope (B,) largest z / range per bin (-inf: none), range (B,) of that return, range (B,)
     of the nearest return of the top beam (within ``TOP_BEAM_DEG``; inf: none), a function mapping
     (K, 2) x, y to their bin numbers (K,)). A structure whose bin holds a higher return farther away
     does not stop the top beams: the sensor sees over it (a van, a hedge, a garden wall); one whose
-    top beam stopped nearer is hidden above (its top is not seen).
+    top beam stopped nearer is hidden above (its top is not seen). ``rng`` (N,): the (N, 3) returns'
+    horizontal ranges, if already known.
     """
     width = np.deg2rad(config.link_azimuth_deg) / 2
     n_bins = int(np.ceil(2 * np.pi / width))
@@ -325,7 +330,7 @@ def highest_returns(xyz: np.ndarray, tan_top: float, config: VerticalStructureCo
     def az_bin(xy: np.ndarray) -> np.ndarray:
         return np.minimum(((np.arctan2(xy[:, 1], xy[:, 0]) + np.pi) / width).astype(np.int64), n_bins - 1)
 
-    rng = np.hypot(xyz[:, 0], xyz[:, 1])
+    rng = np.hypot(xyz[:, 0], xyz[:, 1]) if rng is None else rng
     slope = xyz[:, 2] / np.maximum(rng, 1e-9)
     high = np.flatnonzero(slope >= np.tan(np.arctan(tan_top) - np.deg2rad(2.0)))
     bins = az_bin(xyz[high, :2])
@@ -394,53 +399,75 @@ def link_cells(centroids: np.ndarray, weights: np.ndarray, config: VerticalStruc
     5 degree bins), refined by a principal-axis fit to the neighbours within ``line_tolerance_m``
     of it. Linked cells (see the module docstring) are grouped by connected components.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     n = len(centroids)
     pairs = neighbour_pairs(centroids, config, columns)
     if n < 2 or len(pairs) == 0:
         return np.full(n, -1)
     p, q = pairs[:, 0], pairs[:, 1]
-    d = centroids[q] - centroids[p]                          # one entry per undirected pair
+    x, y = centroids[:, 0], centroids[:, 1]
+    dx, dy = x[q] - x[p], y[q] - y[p]                        # one entry per undirected pair
     bins = 36
-    b = (np.mod(np.arctan2(d[:, 1], d[:, 0]), np.pi) * (bins / np.pi)).astype(np.int64)
+    b = (np.mod(np.arctan2(dy, dx), np.pi) * (bins / np.pi)).astype(np.int64)
     b = np.minimum(b, bins - 1)
     votes = (np.bincount(p * bins + b, weights=weights[q], minlength=n * bins)
              + np.bincount(q * bins + b, weights=weights[p], minlength=n * bins)).reshape(n, bins)
-    votes += 0.5 * (np.roll(votes, 1, axis=1) + np.roll(votes, -1, axis=1))
+    around = np.concatenate([votes[:, -1:], votes, votes[:, :1]], axis=1)     # (n, bins + 2), cyclic
+    votes += 0.5 * (around[:, :-2] + around[:, 2:])
     theta = (np.argmax(votes, axis=1) + 0.5) * (np.pi / bins)
-    normal = np.column_stack([-np.sin(theta), np.cos(theta)])
+    nx, ny = -np.sin(theta), np.cos(theta)
     # Refine each direction by a weighted principal axis of the neighbours on its dominant line
     # (moments about the cell itself; a pair seen from its other end has the opposite offset).
     # (The voted direction is a bin's centre: a far neighbour, linked as seen from the sensor, may
     # lie |d| sin(bin) off its line.)
     tol = config.line_tolerance_m
-    dist = np.hypot(d[:, 0], d[:, 1])
+    dist = np.hypot(dx, dy)
     reach = tol + np.where(dist > config.link_radius_m, dist * np.sin(np.pi / bins), 0.0)
-    at_p = np.abs(d[:, 0] * normal[p, 0] + d[:, 1] * normal[p, 1]) <= reach
-    at_q = np.abs(d[:, 0] * normal[q, 0] + d[:, 1] * normal[q, 1]) <= reach
+    at_p = np.abs(dx * nx[p] + dy * ny[p]) <= reach
+    at_q = np.abs(dx * nx[q] + dy * ny[q]) <= reach
     owner = np.concatenate([p[at_p], q[at_q]])
     w = np.concatenate([weights[q[at_p]], weights[p[at_q]]])
-    dd = np.concatenate([d[at_p], -d[at_q]])
+    ddx, ddy = np.concatenate([dx[at_p], -dx[at_q]]), np.concatenate([dy[at_p], -dy[at_q]])
     total = np.bincount(owner, w, n) + weights
-    mx = np.bincount(owner, w * dd[:, 0], n) / total
-    my = np.bincount(owner, w * dd[:, 1], n) / total
-    sxx = np.bincount(owner, w * dd[:, 0] ** 2, n) / total - mx ** 2
-    syy = np.bincount(owner, w * dd[:, 1] ** 2, n) / total - my ** 2
-    sxy = np.bincount(owner, w * dd[:, 0] * dd[:, 1], n) / total - mx * my
+    mx = np.bincount(owner, w * ddx, n) / total
+    my = np.bincount(owner, w * ddy, n) / total
+    sxx = np.bincount(owner, w * ddx ** 2, n) / total - mx ** 2
+    syy = np.bincount(owner, w * ddy ** 2, n) / total - my ** 2
+    sxy = np.bincount(owner, w * ddx * ddy, n) / total - mx * my
     theta = 0.5 * np.arctan2(2 * sxy, sxx - syy)
-    direction = np.column_stack([np.cos(theta), np.sin(theta)])
-    normal = np.column_stack([-direction[:, 1], direction[:, 0]])
+    ux, uy = np.cos(theta), np.sin(theta)                     # direction; the normal is (-uy, ux)
     has_line = np.bincount(owner, minlength=n) >= config.min_support
     linked = has_line[p] & has_line[q]
-    linked &= np.abs((direction[p] * direction[q]).sum(1)) >= np.cos(np.deg2rad(config.link_angle_deg))
-    linked &= np.abs((d * normal[p]).sum(1)) <= tol
-    linked &= np.abs((d * normal[q]).sum(1)) <= tol
-    graph = coo_matrix((np.ones(int(linked.sum())), (p[linked], q[linked])), shape=(n, n))
-    _, labels = connected_components(graph, directed=False)
+    linked &= np.abs(ux[p] * ux[q] + uy[p] * uy[q]) >= np.cos(np.deg2rad(config.link_angle_deg))
+    linked &= np.abs(dx * -uy[p] + dy * ux[p]) <= tol
+    linked &= np.abs(dx * -uy[q] + dy * ux[q]) <= tol
+    labels = connected_labels(n, p[linked], q[linked])
     labels[~has_line] = -1
     return labels
+
+
+def connected_labels(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """(n,) connected-component label of each of n nodes joined by the (E,) undirected edges i-j,
+    numbered in the order of each component's smallest node (as scipy's ``connected_components``).
+
+    Every root takes the smallest root it shares an edge with, and the roots' chains are shortened
+    until each node points at its root; this repeats until no edge joins two roots.
+    """
+    root = np.arange(n)
+    while len(i):
+        ri, rj = root[i], root[j]
+        apart = ri != rj
+        if not apart.any():
+            break
+        ri, rj = ri[apart], rj[apart]
+        low = np.minimum(ri, rj)
+        np.minimum.at(root, ri, low)
+        np.minimum.at(root, rj, low)
+        while True:
+            up = root[root]
+            if np.array_equal(up, root):
+                break
+            root = up
+    return _labels(root)[1] if n else root
 
 
 # --- stage 5: pieces (on cells) ------------------------------------------------------------------------
@@ -486,7 +513,7 @@ def cell_pieces(cells: Cells, group: np.ndarray, config: VerticalStructureConfig
     members = np.flatnonzero(group >= 0)
     if len(members) == 0:
         return label
-    _, grp = np.unique(group[members], return_inverse=True)
+    _, grp = _labels(group[members])
     for _ in range(2):
         n = int(grp.max()) + 1
         mean, direction, _, _ = _group_lines(grp, cells, members, n)
@@ -523,9 +550,6 @@ def merge_collinear(cells: Cells, members: np.ndarray, piece: np.ndarray, config
     """Join pieces (labels ``piece`` of cells ``members``) of one line whose ends are close: within
     ``merge_gap_m``, or within ``link_azimuth_deg`` and ``link_radial_m`` as seen from the sensor.
     Returns the new (K,) labels."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     n = int(piece.max()) + 1
     if n < 2 or config.merge_gap_m <= 0:
         return piece
@@ -540,9 +564,7 @@ def merge_collinear(cells: Cells, members: np.ndarray, piece: np.ndarray, config
     ok = np.abs((u[i] * u[j]).sum(1)) >= np.cos(np.deg2rad(config.merge_angle_deg))
     ok &= np.abs((dm * normal[i]).sum(1)) <= config.merge_offset_m
     ok &= np.abs((dm * normal[j]).sum(1)) <= config.merge_offset_m
-    graph = coo_matrix((np.ones(int(ok.sum())), (i[ok], j[ok])), shape=(n, n))
-    _, merged = connected_components(graph, directed=False)
-    return merged[piece]
+    return connected_labels(n, i[ok], j[ok])[piece]
 
 
 # --- levelling ----------------------------------------------------------------------------------------
@@ -574,7 +596,7 @@ def wall_lean(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.ndarr
     member = np.flatnonzero((point_piece >= 0) & (height >= config.line_min_height_m))
     if len(member) == 0:
         return np.zeros(2)
-    _, piece = np.unique(point_piece[member], return_inverse=True)
+    _, piece = _labels(point_piece[member])
     n = int(piece.max()) + 1
     pts = xyz[member]
     count = np.bincount(piece, minlength=n).astype(float)
@@ -625,10 +647,11 @@ def scan_lean(xyz: np.ndarray, height: np.ndarray, tan_top: float, step: float |
         config = config.model_copy(update={"link_azimuth_deg": config.link_azimuth_deg * k})
     if len(band) < config.min_points:
         return np.zeros(2)
-    cells = structure_cells(xyz[band], height[band], tan_top, config, lines_only=True)
+    xyz, height = np.take(xyz, band, axis=0), height[band]
+    cells = structure_cells(xyz, height, tan_top, config, lines_only=True)
     # The groups of linked cells are straight enough to measure a lean: no need to cut them into pieces.
     label = link_cells(cells.centroid, cells.count, config)
-    return wall_lean(xyz[band], height[band], cells, label, config, min_points=max(10, 30 // k))
+    return wall_lean(xyz, height, cells, label, config, min_points=max(10, 30 // k))
 
 
 def level_rotation(g: np.ndarray) -> np.ndarray:
@@ -667,71 +690,95 @@ def unlevel_segments(result: ScanSegments, R: np.ndarray) -> ScanSegments:
 
 # --- stage 6: walls -------------------------------------------------------------------------------------
 
-def azimuth_step_deg(xyz: np.ndarray) -> float | None:
-    """The scan's azimuth step (degrees) measured from its (N, 3) returns, or None.
+def azimuth_step_deg(xyz: np.ndarray, rng: np.ndarray | None = None) -> float | None:
+    """The scan's azimuth step (degrees) measured from its (N, 3) returns (``rng`` (N,): their horizontal
+    ranges, if already known), or None.
 
     Returns beyond 10 m are grouped by elevation in 0.02 deg bins (one laser each, mostly); in each of
     the five fullest bins the median angle between azimuth-neighbours is a step estimate (a missed
     return doubles one gap, two lasers in one bin halve them); the smallest estimate is taken.
     """
-    rng = np.hypot(xyz[:, 0], xyz[:, 1])
-    far = rng > 10.0
-    if far.sum() < 200:
+    rng = np.hypot(xyz[:, 0], xyz[:, 1]) if rng is None else rng
+    far = np.flatnonzero(rng > 10.0)
+    if len(far) < 200:
         return None
     elevation = np.degrees(np.arctan2(xyz[far, 2], rng[far]))
-    azimuth = np.degrees(np.arctan2(xyz[far, 1], xyz[far, 0]))
     b = np.floor(elevation / 0.02).astype(np.int64)
     b -= b.min()
     estimates = []
     for ring in np.argsort(np.bincount(b))[-5:]:
-        gaps = np.diff(np.sort(azimuth[b == ring]))
+        on = far[b == ring]
+        gaps = np.diff(np.sort(np.degrees(np.arctan2(xyz[on, 1], xyz[on, 0]))))
         gaps = gaps[(gaps > 1e-4) & (gaps < 3.0)]
         if len(gaps) >= 20:
             estimates.append(float(np.median(gaps)))
     return min(estimates) if estimates else None
 
 
-def elevation_step_deg(xyz: np.ndarray, azimuth_step: float) -> float | None:
+def elevation_step_deg(xyz: np.ndarray, azimuth_step: float, rng: np.ndarray | None = None) -> float | None:
     """The scan's typical beam spacing (degrees) from its (N, 3) returns beyond 15 m, or None: the
     median elevation difference of returns that follow each other in elevation within one azimuth
-    step (every eighth azimuth bin is enough)."""
-    rng = np.hypot(xyz[:, 0], xyz[:, 1])
+    step (every eighth azimuth bin is enough). ``rng`` (N,): their horizontal ranges, if already known."""
+    rng = np.hypot(xyz[:, 0], xyz[:, 1]) if rng is None else rng
     far = np.flatnonzero(rng > 15.0)
     az_bin = np.floor((np.arctan2(xyz[far, 1], xyz[far, 0]) + np.pi) / np.deg2rad(azimuth_step)).astype(np.int64)
     far, az_bin = far[az_bin % 8 == 0], az_bin[az_bin % 8 == 0]
     if len(far) < 200:
         return None
     elevation = np.arctan2(xyz[far, 2], rng[far])
-    order = np.lexsort((elevation, az_bin))
+    order = _group_order(az_bin, elevation)
     gaps = np.diff(elevation[order])
     gaps = gaps[(az_bin[order][1:] == az_bin[order][:-1]) & (gaps > np.deg2rad(0.05)) & (gaps < np.deg2rad(5.0))]
     return float(np.degrees(np.median(gaps))) if len(gaps) >= 20 else None
 
 
-def top_beam_tangent(xyz: np.ndarray, config: VerticalStructureConfig) -> float:
-    """tan of the scan's top-beam elevation: the ``top_beam_quantile`` of z / range over returns beyond 3 m."""
-    rng = np.hypot(xyz[:, 0], xyz[:, 1])
+def top_beam_tangent(xyz: np.ndarray, config: VerticalStructureConfig, rng: np.ndarray | None = None) -> float:
+    """tan of the scan's top-beam elevation: the ``top_beam_quantile`` of z / range over returns beyond 3 m
+    (``rng`` (N,): the (N, 3) returns' horizontal ranges, if already known)."""
+    rng = np.hypot(xyz[:, 0], xyz[:, 1]) if rng is None else rng
     far = rng > 3.0
     if not far.any():
         return np.inf
     return float(np.quantile(xyz[far, 2] / rng[far], config.top_beam_quantile))
 
 
-def top_beam_reach_from(xyz: np.ndarray, height: np.ndarray, tan_top: float, config: VerticalStructureConfig) -> float:
+def top_beam_reach_from(xyz: np.ndarray, height: np.ndarray, tan_top: float, config: VerticalStructureConfig,
+                        rng: np.ndarray | None = None) -> float:
     """Range (metres) from which the scan's top beam passes ``reach_min_m`` above the ground under the
     sensor (the median of z - height of the (N, 3) returns within 10 m), so that reaching it says a
     structure is taller than a car; 0 when the ground near the sensor is not seen or the top beam
-    points down."""
-    near = np.hypot(xyz[:, 0], xyz[:, 1]) <= 10.0
+    points down. ``rng`` (N,): the returns' horizontal ranges, if already known."""
+    near = (np.hypot(xyz[:, 0], xyz[:, 1]) if rng is None else rng) <= 10.0
     if near.sum() < 10 or not np.isfinite(tan_top) or tan_top <= 0:
         return 0.0
     sensor_height = -float(np.median(xyz[near, 2] - height[near]))
     return max(0.0, (config.reach_min_m - sensor_height) / tan_top)
 
 
+def _group_order(group: np.ndarray, value: np.ndarray) -> np.ndarray:
+    """(K,) an order that sorts (K,) ``group`` labels (>= 0) and, within each group, their (K,) ``value``
+    (equal values of a group in any order)."""
+    k = len(value)
+    by_value = np.argsort(value)
+    rank = np.empty(k, np.int64)
+    rank[by_value] = np.arange(k)
+    return by_value[np.sort(group * k + rank) % k]
+
+
+def _labels(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(values, return_inverse=True)`` of (K,) integer labels (>= 0, K >= 1): the sorted distinct
+    labels and the (K,) index of each value among them (by a table when the labels' range is small)."""
+    top = int(values.max()) + 1
+    if top > 4 * len(values) + 4096:
+        return np.unique(values, return_inverse=True)
+    present = np.zeros(top, bool)
+    present[values] = True
+    return np.flatnonzero(present), (np.cumsum(present) - 1)[values]
+
+
 def _group_median(group: np.ndarray, value: np.ndarray, n: int) -> np.ndarray:
     """(n,) median (the upper one of an even count) of ``value`` per ``group`` label; nan for empty groups."""
-    order = np.lexsort((value, group))
+    order = _group_order(group, value)
     count = np.bincount(group, minlength=n)
     start = np.concatenate([[0], np.cumsum(count)[:-1]])
     out = np.full(n, np.nan)
@@ -754,13 +801,13 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     members = np.flatnonzero(label >= 0)
     if len(members) == 0:
         return out
-    _, piece = np.unique(label[members], return_inverse=True)
+    _, piece = _labels(label[members])
     n = int(piece.max()) + 1
     _, _, count, msd, a, b, along = _piece_ends(cells, members, piece, n)
     t_min = np.full(n, np.inf)
     np.minimum.at(t_min, piece, along)
     column = np.floor((along - t_min[piece]) / COLUMN_M).astype(np.int64)
-    _, col = np.unique(piece * (int(column.max()) + 1) + column, return_inverse=True)
+    _, col = _labels(piece * (int(column.max()) + 1) + column)
     n_col = int(col.max()) + 1
     col_piece = np.zeros(n_col, np.int64)
     col_piece[col] = piece
@@ -844,7 +891,7 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
     member = np.flatnonzero((point_piece >= 0) & ~low)
     if len(member) == 0:
         return None
-    labels, piece = np.unique(point_piece[member], return_inverse=True)
+    labels, piece = _labels(point_piece[member])
     n = int(piece.max()) + 1
     for _ in range(2):
         pts = xyz[member]
@@ -884,7 +931,7 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
     # Thinness along the wall: distance of each point to the median offset of its 0.5 m column (a
     # facade's recesses shift whole columns; foliage scatters the points of every column).
     column = np.floor((along - t_min[piece]) / COLUMN_M).astype(np.int64)
-    _, col = np.unique(piece * (int(column.max()) + 1) + column, return_inverse=True)
+    _, col = _labels(piece * (int(column.max()) + 1) + column)
     col_median = _group_median(col, offset, int(col.max()) + 1)
     a = mean + t_min[:, None] * u
     b = mean + t_max[:, None] * u
@@ -900,7 +947,7 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
 
 def _max_gap(piece: np.ndarray, along: np.ndarray, n: int) -> np.ndarray:
     """(n,) longest gap between consecutive ``along`` positions (K,) of each piece (``piece`` (K,))."""
-    order = np.lexsort((along, piece))
+    order = _group_order(piece, along)
     g, t = piece[order], along[order]
     gap = np.zeros(n)
     same = g[1:] == g[:-1]
@@ -1001,23 +1048,25 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
     clock = StageClock(timings)
     xyz = validated_xyz(points)
     rng = np.hypot(xyz[:, 0], xyz[:, 1])
-    xyz = xyz[(rng >= config.min_range_m) & (rng <= config.max_range_m)]
+    in_range = (rng >= config.min_range_m) & (rng <= config.max_range_m)
+    if not in_range.all():
+        xyz, rng = np.compress(in_range, xyz, axis=0), rng[in_range]
     clock.lap("crop")
     if len(xyz) < config.min_points:
         return ScanSegments.empty()
     height = heights_above_local_ground(xyz, config)
-    tan_top = top_beam_tangent(xyz, config)
-    reach_from = top_beam_reach_from(xyz, height, tan_top, config)
-    step = azimuth_step_deg(xyz) if config.link_azimuth_steps > 0 else None
+    tan_top = top_beam_tangent(xyz, config, rng)
+    reach_from = top_beam_reach_from(xyz, height, tan_top, config, rng)
+    step = azimuth_step_deg(xyz, rng) if config.link_azimuth_steps > 0 else None
     if step is not None:                       # later stages see the scan's own sampling
         update = {"link_azimuth_deg": config.link_azimuth_steps * step}
-        beams = elevation_step_deg(xyz, step)
+        beams = elevation_step_deg(xyz, step, rng)
         if beams is not None:
             update["elevation_step_deg"] = beams
         config = config.model_copy(update=update)
     clock.lap("ground")
     above = height > config.ground_margin_m
-    xyz, height = xyz[above], height[above]
+    xyz, height, rng = np.compress(above, xyz, axis=0), height[above], rng[above]
     if len(xyz) < config.min_points:
         return ScanSegments.empty()
     sensor_xyz, R = xyz, None
@@ -1028,7 +1077,7 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
             # (Sums of products, not a matrix product: BLAS threads would spin on a busy machine.)
             xyz = sensor_xyz[:, :1] * R[:, 0] + sensor_xyz[:, 1:2] * R[:, 1] + sensor_xyz[:, 2:] * R[:, 2]
         clock.lap("level")
-    cells = structure_cells(xyz, height, tan_top, config, sensor_xyz, reach_from)
+    cells = structure_cells(xyz, height, tan_top, config, sensor_xyz, reach_from, sensor_rng=rng)
     clock.lap("cells")
     group = link_cells(cells.centroid, cells.count, config, cells.top - cells.bottom >= config.link_column_m)
     clock.lap("lines")
