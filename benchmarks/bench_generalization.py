@@ -42,7 +42,6 @@ settings does not extract again. ``--no-cache`` extracts every scan (for timing)
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import shutil
@@ -66,7 +65,7 @@ from featmap.pipeline import SegmentStore, load_config
 from featmap.pipeline.executor import ProcessExecutor, SerialExecutor
 from featmap.pipeline.extract import extract_source
 from featmap.simulation.procedural import generate, split_seeds
-from featmap.simulation.simulate import SIM_DATE, simulate_drive
+from featmap.simulation.simulate import SIM_DATE, simulate_drive, simulation_fingerprint
 
 DRIVE = f"{SIM_DATE}_drive_0001"
 MAX_WORKERS = 2
@@ -78,14 +77,10 @@ FEW_HITS = (50, 300)
 
 def _fingerprint(seed: int) -> str:
     """What a cached drive was made from: the world, its settings and the simulator's source."""
-    import featmap.simulation as simulation
-
     g = generate(seed)
-    sources = sorted(Path(simulation.__file__).parent.glob("*.py"))
-    spec = {"world": g.world.model_dump(mode="json"), "sensor": g.settings.sensor.__dict__,
-            "noise_m": g.settings.noise_m, "dropout": g.settings.dropout, "seed": g.settings.seed,
-            "simulator": hashlib.sha256(b"".join(p.read_bytes() for p in sources)).hexdigest()}
-    return hashlib.sha256(json.dumps(spec, sort_keys=True, default=list).encode()).hexdigest()[:16]
+    return simulation_fingerprint({"world": g.world.model_dump(mode="json"), "sensor": g.settings.sensor.__dict__,
+                                   "noise_m": g.settings.noise_m, "dropout": g.settings.dropout,
+                                   "seed": g.settings.seed})
 
 
 def drive_root(sim_root: Path, split: str, seed: int) -> Path:

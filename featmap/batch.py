@@ -273,8 +273,16 @@ def plan_batch(path: str | Path, out: str | Path | None = None, config: str | Pa
     common = list(spec.set) + list(overrides)
     drives: list[DriveTask] = []
     seen: dict[str, int] = {}
+    world_of_stem: dict[str, tuple[str, int]] = {}    # simulated drives live in sim_root/<world stem>
     for index, entry in enumerate(spec.drives):
         sources = _sources(entry, index, path, sim_root)
+        for _, _, world in sources:
+            if world is None:
+                continue
+            other = world_of_stem.setdefault(Path(world).stem, (world, index))
+            if other[0] != world:
+                raise ConfigError(f"{path}: drives[{index}]: world {world} and drives[{other[1]}]'s {other[0]} would "
+                                  f"both be simulated into {sim_root / Path(world).stem}; rename one of the files")
         if entry.name is not None and len(sources) != 1:
             raise ConfigError(f"{path}: drives[{index}]: 'name' names one drive, but the entry matches {len(sources)}")
         for default_name, source, world in sources:

@@ -7,35 +7,63 @@ raw drive with a ``truth/`` folder beside its scans, read through :class:`KittiR
 
 from __future__ import annotations
 
+import json
+import shutil
 from pathlib import Path
 
 from featmap.datasets.kitti_raw import KittiRawDataset
+from featmap.io.atomic import atomic_write_text
 from featmap.reporting import NullReporter, Reporter, track
 
 DEFAULT_WORLD = "residential"
 DEFAULT_SIM_ROOT = Path("data/sim")
 SIM_DRIVE_ID = "0001"
+STAMP_FILE = "world.json"
+"""Beside a simulated drive: the fingerprint of what it was simulated from."""
 
 
 def ensure_simulated_drive(world_name: str = DEFAULT_WORLD, sim_root: str | Path = DEFAULT_SIM_ROOT,
                            reporter: Reporter = NullReporter()) -> tuple[Path, str]:
     """Return (KITTI raw root, drive name) of the simulated drive of ``world_name``, simulating it if missing.
 
-    ``world_name`` is a built-in world or a world file; its drive lives in ``sim_root/<world stem>``.
+    ``world_name`` is a built-in world or a world file; its drive lives in ``sim_root/<world stem>``
+    with a stamp (``world.json``) of what it was simulated from: the world's content, the sensor and
+    the simulator's source. A drive whose stamp differs (the world file was edited, another file of
+    the same name was simulated there, or the simulator changed) is simulated again.
     """
     from featmap.simulation.sensors import SENSORS
-    from featmap.simulation.simulate import SIM_DATE, simulate_drive
+    from featmap.simulation.simulate import SIM_DATE, simulate_drive, simulation_fingerprint
     from featmap.simulation.worlds import load_world
 
     stem = Path(world_name).stem
     data_dir = Path(sim_root) / stem
     drive = f"{SIM_DATE}_drive_{SIM_DRIVE_ID}"
-    if not (data_dir / SIM_DATE / f"{drive}_sync" / "truth" / "simulation.json").exists():
-        world = load_world(world_name)
+    world = load_world(world_name)
+    sensor = SENSORS["hdl64"]
+    fingerprint = simulation_fingerprint({"world": world.model_dump(mode="json"), "sensor": sensor.__dict__,
+                                          "drive_id": SIM_DRIVE_ID})
+    stamp = data_dir / STAMP_FILE
+    done = (data_dir / SIM_DATE / f"{drive}_sync" / "truth" / "simulation.json").exists()
+    if done and _stamped(stamp) == fingerprint:
+        return data_dir, drive
+    if done:
+        reporter.info(f"{world_name}: the world or the simulator changed since {data_dir} was simulated; "
+                      "simulating it again")
+        shutil.rmtree(data_dir / SIM_DATE)
+    else:
         reporter.info(f"first run: simulating the {stem} drive into {data_dir} (reused afterwards)")
-        simulate_drive(world, data_dir, SENSORS["hdl64"], drive_id=SIM_DRIVE_ID,
-                       progress=lambda it, n: track(reporter, it, n, f"simulating {stem}"))
+    simulate_drive(world, data_dir, sensor, drive_id=SIM_DRIVE_ID,
+                   progress=lambda it, n: track(reporter, it, n, f"simulating {stem}"))
+    atomic_write_text(stamp, json.dumps({"world": str(world_name), "fingerprint": fingerprint}) + "\n")
     return data_dir, drive
+
+
+def _stamped(stamp: Path) -> str | None:
+    """The fingerprint in a drive's stamp file (None when missing or unreadable)."""
+    try:
+        return json.loads(stamp.read_text()).get("fingerprint")
+    except (OSError, ValueError, AttributeError):
+        return None
 
 
 def open_world(location: str, frames: str | None = None, skip_bad_scans: bool = False,

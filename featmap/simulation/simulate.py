@@ -204,6 +204,19 @@ class SimulatedDrive:
         return drive_paths(self.root, self.date, self.drive_id)[1]
 
 
+def simulation_fingerprint(spec: dict) -> str:
+    """16 hex digits naming what a simulated drive is made from: ``spec`` (JSON-able: the world, sensor,
+    noise, seed, ...) and the source code of :mod:`featmap.simulation`, so that a cached drive is
+    simulated again when either changes."""
+    import hashlib
+
+    import featmap.simulation as simulation
+
+    sources = sorted(Path(simulation.__file__).parent.glob("*.py"))
+    spec = {**spec, "simulator": hashlib.sha256(b"".join(p.read_bytes() for p in sources)).hexdigest()}
+    return hashlib.sha256(json.dumps(spec, sort_keys=True, default=list).encode()).hexdigest()[:16]
+
+
 def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_frames: int | None = None,
                    noise_m: float = 0.02, dropout: float = 0.0, pose_noise: tuple[float, float] = (0.0, 0.0),
                    seed: int = 0, drive_id: str = "0001", truth_range_m: float = 50.0,
@@ -248,8 +261,8 @@ def _simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_
     """The body of :func:`simulate_drive` (which removes its temporary folder when this fails)."""
     if not (0.0 <= dropout < 1.0):
         raise FeatmapError(f"--dropout {dropout}: must be in [0, 1)")
-    if noise_m < 0 or pose_noise[0] < 0 or pose_noise[1] < 0:
-        raise FeatmapError("--noise and --pose-noise must be non-negative")
+    if not all(np.isfinite(v) and v >= 0 for v in (noise_m, *pose_noise)):
+        raise FeatmapError("--noise and --pose-noise must be finite and non-negative")
     if not pose_noise_tau_s > 0:
         raise FeatmapError(f"--pose-noise-tau {pose_noise_tau_s}: must be positive (seconds)")
     rng = np.random.default_rng(seed)

@@ -27,6 +27,8 @@ def batch(tmp_path, tiny_worlds):
     ("drives:\n  - world: nowhere_world\n", "drives[0]: unknown world 'nowhere_world'"),
     ("drives:\n  - world: WORLDS/tiny.yaml\n  - world: WORLDS/tiny.yaml\n", "a second drive named 'tiny' (drives[0])"),
     ("drives:\n  - world: WORLDS/tiny.yaml\n    name: merged\n", "'merged' cannot be a run folder name"),
+    ("drives:\n  - world: WORLDS/tiny.yaml\n  - world: WORLDS/../tiny_worlds_copy/tiny.yaml\n    name: other\n",
+     "would both be simulated into"),
     ("drives:\n  - kitti: 2011_09_26_drive_9*\n    data_dir: /nonexistent\n", "drives[0]: kitti '/nonexistent/*/2011_09_26_drive_9*_sync' matches nothing"),
     ("drives:\n  - kitti: drive_0001\n", "drives[0]: "),
     ("drives:\n  - dataset: carmen\n    location: /nonexistent/*.log\n", "location '/nonexistent/*.log' matches nothing"),
@@ -40,7 +42,10 @@ def batch(tmp_path, tiny_worlds):
     ("drives: [\n", "b.yaml:2: not valid YAML"),
     ("- world: residential\n", "b.yaml: expected a mapping of sections"),
 ])
-def test_bad_batch_files(batch, tmp_path, text, needle):
+def test_bad_batch_files(batch, tmp_path, tiny_worlds, text, needle):
+    copy = tiny_worlds.parent / "tiny_worlds_copy"                # another world file named tiny.yaml
+    copy.mkdir(exist_ok=True)
+    (copy / "tiny.yaml").write_text((tiny_worlds / "tiny.yaml").read_text().replace("height: 8", "height: 12"))
     res = cli("batch", batch(text), "--out", tmp_path / "out")
     one_line_error(res, needle)
     assert not (tmp_path / "out").exists()

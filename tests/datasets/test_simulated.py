@@ -1,0 +1,41 @@
+"""Simulated drives are reused only while they were simulated from the same world and simulator."""
+
+import pandas as pd
+
+from featmap.datasets.simulated import ensure_simulated_drive
+from featmap.reporting import RecordingReporter
+from tests.conftest import TINY_WORLD
+
+
+def _walls(data_dir):
+    return pd.read_csv(next(data_dir.rglob("truth/walls.csv")))
+
+
+def test_an_edited_world_file_is_simulated_again(tmp_path):
+    world = tmp_path / "w" / "tiny.yaml"
+    world.parent.mkdir()
+    world.write_text(TINY_WORLD)
+    data_dir, _ = ensure_simulated_drive(str(world), tmp_path / "sim")
+    stamp = (data_dir / "world.json").stat().st_mtime_ns
+    first = _walls(data_dir)
+    assert first.query("building == 'A'")[["y1", "y2"]].min().min() == 6
+
+    reporter = RecordingReporter()
+    assert ensure_simulated_drive(str(world), tmp_path / "sim", reporter)[0] == data_dir
+    assert (data_dir / "world.json").stat().st_mtime_ns == stamp          # unchanged: reused as it is
+    assert not any("again" in text for text in reporter.infos)
+
+    world.write_text(TINY_WORLD.replace("[[-5, 6], [15, 6], [15, 16], [-5, 16]]", "[[-5, 20], [15, 20], [15, 30], [-5, 30]]"))
+    ensure_simulated_drive(str(world), tmp_path / "sim", reporter)
+    assert any("simulating it again" in text for text in reporter.infos)
+    assert _walls(data_dir).query("building == 'A'")[["y1", "y2"]].min().min() == 20
+
+
+def test_another_world_file_of_the_same_name_does_not_get_the_first_ones_drive(tmp_path):
+    for folder, y in (("a", 6), ("b", 22)):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "street.yaml").write_text(
+            TINY_WORLD.replace("[[-5, 6], [15, 6], [15, 16], [-5, 16]]", f"[[-5, {y}], [15, {y}], [15, {y + 10}], [-5, {y + 10}]]"))
+    for folder, y in (("a", 6), ("b", 22), ("a", 6)):
+        data_dir, _ = ensure_simulated_drive(str(tmp_path / folder / "street.yaml"), tmp_path / "sim")
+        assert _walls(data_dir).query("building == 'A'")[["y1", "y2"]].min().min() == y
