@@ -97,7 +97,8 @@ class MappingPipeline:
 
     def run(self, source: ScanSource, out: str | Path) -> RunResult:
         t0 = time.perf_counter()
-        with RunFolder(out) as folder:
+        inputs = [Path(source.location)] + [Path(p) for p in (self.config.evaluation.footprints,) if p]
+        with RunFolder(out, inputs=inputs) as folder:
             extraction = self.extract(source)
             for message in extraction.discarded:
                 self.reporter.warning(f"discarded a corrupt cache entry and extracted again: {message}")

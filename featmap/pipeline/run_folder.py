@@ -15,7 +15,7 @@ import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
@@ -30,11 +30,13 @@ class RunFolder:
     """``with RunFolder(out) as folder:`` write into ``folder.tmp``, then ``folder.commit()``.
 
     Leaving the block without ``commit`` (an error) removes the temporary folder and keeps ``out`` as it was.
+    ``inputs``: files or folders the run reads; an ``out`` that holds one is refused (the swap would delete it).
     """
 
-    def __init__(self, out: str | Path, marker: str = "metrics.json"):
+    def __init__(self, out: str | Path, marker: str = "metrics.json", inputs: Iterable[str | Path] = ()):
         self.out = Path(out)
         self.marker = marker
+        self.inputs = [Path(p) for p in inputs]
         self.tmp: Path | None = None
         self._lock_fd: int | None = None
 
@@ -47,6 +49,11 @@ class RunFolder:
             if resolved == here or resolved in here.parents:
                 raise RunFolderError(f"--out {out}: is the current folder (or holds it); a run replaces its "
                                      "--out folder whole: give a new or empty folder")
+            for path in self.inputs:
+                inside = path.absolute().resolve()
+                if inside == resolved or resolved in inside.parents:
+                    raise RunFolderError(f"--out {out}: holds {path}, an input of this run; a run replaces its "
+                                         "--out folder whole: give another folder")
             if any(out.iterdir()) and not (out / self.marker).is_file():
                 raise RunFolderError(f"--out {out}: holds other files and is not a featmap output folder (no "
                                      f"{self.marker}); a run replaces its --out folder whole: give a new or empty folder")

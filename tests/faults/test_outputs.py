@@ -93,3 +93,16 @@ def test_a_simulation_that_fails_midway_leaves_no_partial_drive(tmp_path, small_
     disk = small_disk("2m")
     one_line_error(cli("simulate", "--world", "prescan_case1", "--out", disk, "--frames", "40"), "No space left on device")
     assert not list(disk.rglob("*.partial")) and not list(disk.rglob("*_sync"))
+
+
+def test_an_out_folder_that_holds_the_runs_input_is_refused(tmp_path):
+    from tests.conftest import write_room_log
+
+    out = tmp_path / "r"
+    log = write_room_log(tmp_path / "room.log", np.random.default_rng(0), n_scans=8)
+    assert cli("run", "--carmen", log, "--out", out, "--cache-dir", tmp_path / "c", "--method", "proposed",
+               "--set", "output.plots=false").exit_code == 0
+    inside = shutil.copy(log, out / "room.log")
+    one_line_error(cli("run", "--carmen", inside, "--out", out, "--cache-dir", tmp_path / "c", "--method", "proposed",
+                       "--set", "output.plots=false"), "an input of this run")
+    assert (out / "room.log").is_file() and (out / "metrics.json").is_file()
