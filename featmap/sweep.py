@@ -316,6 +316,23 @@ def _digest(*parts: bytes) -> str:
     return h.hexdigest()
 
 
+def _reference_content(path: str | Path | None) -> bytes:
+    """What a reference was read from, for the sweep's identity: the bytes of the file, or of every file of
+    the folder (with their relative paths), so that an edited truth never serves the old rows. ``path``
+    may join several with ``;`` (a batch); anything that is not a file or folder counts by its name."""
+    if path is None or str(path) == "":
+        return b""
+    if ";" in str(path):                                   # a batch's truths, united
+        return b"\0;".join(_reference_content(part) for part in str(path).split(";"))
+    path = Path(path)
+    if path.is_file():
+        return path.read_bytes()
+    if path.is_dir():
+        return b"".join(str(p.relative_to(path)).encode() + b"\0" + p.read_bytes()
+                        for p in sorted(path.rglob("*")) if p.is_file())
+    return str(path).encode()
+
+
 def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor: Executor,
                 reporter: Reporter, cache_dir: str | Path = "data/cache") -> SweepInputs:
     """The segments, scans and reference a sweep evaluates on."""
@@ -354,7 +371,7 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
             if ref is None:
                 raise FeatmapError(f"{spec_path}: truth {truth_path} is not a truth/ folder or a footprints file")
             reference = (ev, ref)
-        digest = _digest(Path(spec.input).read_bytes(), str(truth_path).encode())
+        digest = _digest(Path(spec.input).read_bytes(), _reference_content(truth_path))
         return SweepInputs(table.segments, table.scan, reference, digest)
     if spec.batch is not None:
         return _batch_inputs(Path(spec.batch))
@@ -372,7 +389,7 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
     ctx = EvaluationContext(source.location, extraction.frames, source.geo_origin, base.evaluation,
                             extraction.world_points(poses), table.segments)
     reference = primary_reference(ctx)
-    digest = _digest(table.segments.tobytes(), table.scan.tobytes(), str(reference[1].path if reference else "").encode())
+    digest = _digest(table.segments.tobytes(), table.scan.tobytes(), _reference_content(reference[1].path if reference else None))
     return SweepInputs(table.segments, table.scan, reference, digest)
 
 
@@ -385,7 +402,7 @@ def _batch_inputs(folder: Path) -> SweepInputs:
     inputs = merged_inputs([(d.name, d.run_dir) for d in record.drives])
     reference = merged_reference(inputs)
     table = inputs.table
-    digest = _digest(table.segments.tobytes(), table.scan.tobytes(), str(reference[1].path if reference else "").encode())
+    digest = _digest(table.segments.tobytes(), table.scan.tobytes(), _reference_content(reference[1].path if reference else None))
     return SweepInputs(table.segments, table.scan, reference, digest)
 
 

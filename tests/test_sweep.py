@@ -196,3 +196,23 @@ grid:
     assert res.exit_code == 0, res.output
     assert "nothing to score against" in " ".join(res.output.split())
     assert "precision" not in (tmp_path / "out2" / "sweep.csv").read_text().splitlines()[0]
+
+
+def test_an_edited_truth_never_serves_the_old_rows(tmp_path, case1_run):
+    import shutil
+
+    from featmap.io.run_metrics import read_run_metrics
+
+    truth_dir = read_run_metrics(case1_run / "metrics.json").reference_path("truth", case1_run)
+    truth = shutil.copytree(truth_dir, tmp_path / "truth")
+    path = _write(tmp_path, f"input: {case1_run / 'segments.csv'}\ntruth: {truth}\nmethods: [proposed]\n"
+                            "grid:\n  fusion.proposed.delta_deg: [2, 5]\n")
+    out = tmp_path / "out"
+    run_sweep_file(path, out)
+    run_sweep_file(path, out)                                              # unchanged: resumes
+    walls = (truth / "walls.csv").read_text().splitlines()
+    last = walls[-1].split(",")
+    last[3] = str(float(last[3]) + 1.0)                                    # one wall moved, same path
+    (truth / "walls.csv").write_text("\n".join(walls[:-1] + [",".join(last)]) + "\n")
+    with pytest.raises(ConfigError, match="holds the results of another sweep"):
+        run_sweep_file(path, out)
