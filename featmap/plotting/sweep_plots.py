@@ -58,13 +58,16 @@ def plot_sweep(rows: list[dict], keys: list[str], out: Path, metric: str) -> lis
     curve_keys = [k for k in keys if len({r.get(k) for r in rows if k in r}) >= 2]
     if curve_keys:
         fig, axes = new_figure(len(curve_keys), 2, size=(12, 3.6 * len(curve_keys)), squeeze=False)
+        methods = {r["method"] for r in rows}
         for row_axes, key in zip(axes, curve_keys):
             method = key.split(".")[1]
-            sub = [r for r in rows if key in r and (r["method"] == method or method == "corners")]
-            xs = sorted({r[key] for r in sub})
+            shared = method not in methods                   # e.g. fusion.refine.*, fusion.corners.*: every method
             for ax, value in zip(row_axes, ("count", metric)):
-                ys = [np.mean([r[value] for r in sub if r[key] == x and r.get(value) is not None] or [np.nan]) for x in xs]
-                ax.plot(xs, ys, "o-", color=method_color(method), label=method_label(method))
+                positions, ys, labels = curve(rows, key, value)
+                ax.plot(positions, ys, "o-", color="0.3" if shared else method_color(method),
+                        label="all methods" if shared else method_label(method))
+                if labels is not None:
+                    ax.set_xticks(positions, labels)
                 ax.set_xlabel(key)
                 ax.set_ylabel(value)
                 ax.grid(True, alpha=0.3)
@@ -97,3 +100,25 @@ def plot_sweep(rows: list[dict], keys: list[str], out: Path, metric: str) -> lis
         save_png(fig, out / "pareto.png")
         paths.append(out / "pareto.png")
     return paths
+
+
+def curve(rows: list[dict], key: str, value: str) -> tuple[list, list[float], list[str] | None]:
+    """(x positions, mean ``value`` at each, tick labels or None) of a swept ``key`` over the rows of the
+    method it belongs to (``fusion.<method>.*``), or of every method for a shared section's key."""
+    method = key.split(".")[1]
+    shared = method not in {r["method"] for r in rows}
+    sub = [r for r in rows if key in r and (shared or r["method"] == method)]
+    xs, positions, labels = _curve_axis([r[key] for r in sub])
+    ys = [float(np.mean([r[value] for r in sub if r[key] == x and r.get(value) is not None] or [np.nan])) for x in xs]
+    return positions, ys, labels
+
+
+def _curve_axis(values: list) -> tuple[list, list, list[str] | None]:
+    """(distinct values in order, their x positions, tick labels or None) of a swept key: numbers on a
+    numeric axis; anything else (null, true/false, names) as evenly spaced categories."""
+    distinct = list(dict.fromkeys(values))
+    if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in distinct):
+        xs = sorted(distinct)
+        return xs, xs, None
+    xs = sorted(distinct, key=lambda v: (v is not None, type(v).__name__, str(v)))
+    return xs, list(range(len(xs))), ["null" if v is None else str(v) for v in xs]
