@@ -52,8 +52,11 @@ WORLDS_DIR = Path(__file__).resolve().parents[1] / "resources" / "worlds"
 KINDS = ("building", "fence", "car", "pole", "tree", "hedge")
 
 
+PositiveLength = Annotated[float, Field(gt=0)]
+
+
 class _Obj(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     id: Optional[str] = None
 
 
@@ -76,7 +79,7 @@ class Car(_Obj):
     kind: Literal["car"]
     position: tuple[float, float]
     heading_deg: float = 0.0
-    size: tuple[float, float, float] = (4.5, 1.8, 1.5)
+    size: tuple[PositiveLength, PositiveLength, PositiveLength] = (4.5, 1.8, 1.5)
 
 
 class Pole(_Obj):
@@ -110,7 +113,7 @@ _OBJECT = TypeAdapter(WorldObject)
 
 
 class Route(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     waypoints: list[tuple[float, float]] = Field(min_length=2)
     speed_mps: float = Field(8.0, gt=0)
     turn_radius_m: float = Field(8.0, ge=0)
@@ -119,7 +122,7 @@ class Route(BaseModel):
 class Street(BaseModel):
     """A street's carriageway: a polyline and its width (metres); the ground outside it is the curb's height higher."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     line: list[tuple[float, float]] = Field(min_length=2)
     width: float = Field(gt=0)
 
@@ -127,7 +130,7 @@ class Street(BaseModel):
 class Ground(BaseModel):
     """The ground surface: a plane with a grade, and raised sidewalks (a curb step) outside the streets."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     grade: tuple[float, float] = Field((0.0, 0.0), description="dz/dx, dz/dy of the ground plane (0.03 = 3 % slope)")
     curb_height: float = Field(0.0, ge=0, le=0.5, description="metres the ground outside the streets lies above them")
     streets: list[Street] = []
@@ -146,7 +149,7 @@ class Ground(BaseModel):
 
 
 class GeoOrigin(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     lat: float = Field(49.0110, ge=-85, le=85)
     lon: float = Field(8.4240, ge=-180, le=180)
 
@@ -154,7 +157,7 @@ class GeoOrigin(BaseModel):
 class World(BaseModel):
     """A validated world: objects in a local metric frame (x east, y north, metres)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     name: str
     description: str = ""
     geo_origin: GeoOrigin = GeoOrigin()

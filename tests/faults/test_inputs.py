@@ -156,6 +156,13 @@ def test_evaluate_and_compare_with_wrong_files(case1_drive, tmp_path):
     one_line_error(cli("figures", tmp_path / "nowhere"), "not a folder")
 
 
+def test_figures_of_a_run_with_a_damaged_trajectory(case1_drive, tmp_path):
+    run = _fused_run(case1_drive, tmp_path)
+    text = (run / "trajectory.csv").read_text()
+    (run / "trajectory.csv").write_text(text[:100])                   # cut in the middle of a row
+    one_line_error(cli("figures", run), "trajectory.csv: not a trajectory table")
+
+
 def test_bad_sweep_files(tmp_path, segments_csv):
     one_line_error(cli("sweep", tmp_path / "none.yaml"), "none.yaml: config file not found")
     huge = tmp_path / "huge.yaml"

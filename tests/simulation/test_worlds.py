@@ -16,6 +16,9 @@ BASE = "name: t\nroute: {waypoints: [[0, 0], [10, 0]]}\nobjects:\n"
     ("  - {id: ufo, kind: spaceship, position: [1, 2]}",
      r"w.yaml: object 'ufo' \('?spaceship'?\): unknown kind 'spaceship'; allowed: building, fence, car, pole, tree"),
     ("  - {kind: car}", r"w.yaml: object #0 \(car\): 'position' field required"),
+    ("  - {id: flat, kind: car, position: [5, 5], size: [-4, 0, 1.5]}",
+     r"w.yaml: object 'flat' \(car\): 'size.0' input should be greater than 0"),
+    ("  - {id: lost, kind: pole, position: [.nan, 5]}", r"w.yaml: object 'lost' \(pole\): 'position.0' input should be a finite number"),
 ])
 def test_bad_world_files_name_the_file_and_the_object(tmp_path, obj, match):
     path = tmp_path / "w.yaml"
@@ -23,6 +26,13 @@ def test_bad_world_files_name_the_file_and_the_object(tmp_path, obj, match):
     with pytest.raises(WorldError, match=match) as info:
         load_world(path)
     assert "\n" not in str(info.value)
+
+
+def test_a_non_finite_route_is_one_line(tmp_path):
+    path = tmp_path / "w.yaml"
+    path.write_text("name: t\nroute: {waypoints: [[-10, .nan], [20, 0]], speed_mps: .inf}\n")
+    with pytest.raises(WorldError, match=r"w.yaml: 'route.waypoints.0.1' input should be a finite number"):
+        load_world(path)
 
 
 def test_builtin_worlds_load_and_label_vertices():
