@@ -16,10 +16,38 @@ from pathlib import Path
 from typing import List, Optional
 
 import typer
+from typer.core import TyperGroup
 
 from featmap.errors import FeatmapError
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+class _OneLineErrors(TyperGroup):
+    """A bad flag or value is one line (``featmap: error: ...``, naming the flag) and exit status 2, like every
+    other known error, instead of Click's usage box."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        import typer.core
+
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+        # (typer >= 0.20 carries its own copy of Click; older versions use Click itself)
+        errors = (getattr(typer.core, "_click", None) or typer.core.click).exceptions
+        abort = getattr(typer.core, "Abort", None) or errors.Abort
+        try:
+            code = super().main(args, prog_name, complete_var, False, **extra)
+        except errors.NoArgsIsHelpError as exc:              # plain `featmap`: the help
+            exc.show()
+            sys.exit(exc.exit_code)
+        except errors.ClickException as exc:
+            message = " ".join(exc.format_message().split())
+            typer.echo(f"featmap: error: {message}", err=True)
+            sys.exit(2 if isinstance(exc, errors.UsageError) else exc.exit_code)
+        except abort:
+            typer.echo("Aborted!", err=True)
+            sys.exit(1)
+        sys.exit(code if isinstance(code, int) else 0)
+
+
+app = typer.Typer(cls=_OneLineErrors, add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Fuse redundant wall features from LiDAR drives into a compact, accurate line map.")
 
 ConfigOpt = typer.Option(None, "--config", "-c", help="YAML config (defaults < this file < --set).",

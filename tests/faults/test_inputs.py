@@ -156,6 +156,18 @@ def test_evaluate_and_compare_with_wrong_files(case1_drive, tmp_path):
     one_line_error(cli("figures", tmp_path / "nowhere"), "not a folder")
 
 
+@pytest.mark.parametrize("args,needle", [
+    (("run", "-j", "0"), "Invalid value for '--workers' / '-j'"),
+    (("simulate", "--world", "residential", "--out", "x", "--noise", "-1"), "Invalid value for '--noise'"),
+    (("simulate", "--world", "residential", "--out", "x", "--dropout", "1"), "--dropout"),
+    (("run", "--frames"), "Option '--frames' requires an argument"),
+    (("fuse",), "Missing argument"),
+    (("nonsense",), "No such command 'nonsense'"),
+])
+def test_bad_flags_are_one_line_like_every_other_error(args, needle):
+    one_line_error(cli(*args), needle)
+
+
 def test_figures_of_a_run_with_a_damaged_trajectory(case1_drive, tmp_path):
     run = _fused_run(case1_drive, tmp_path)
     text = (run / "trajectory.csv").read_text()
