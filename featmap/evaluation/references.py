@@ -9,7 +9,6 @@ Both are expressed in the run's local metric frame.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +16,7 @@ import numpy as np
 from featmap.errors import InputFileError
 from featmap.evaluation.truth_metrics import GroundTruth
 from featmap.geo import GeoFrame, reproject, reproject_segments
+from featmap.io.geojson import features_of, wgs84_position
 from featmap.io.jsonfile import read_json
 from featmap.io.sim_truth import coverage_of_frames, read_objects_local, read_simulation_json, read_walls_csv
 
@@ -61,41 +61,29 @@ def load_simulator_truth(truth_dir: str | Path, frame: GeoFrame | None = None,
                        n_returns=n_returns, other_segments=other, poles=poles)
 
 
-def _position(value, path: Path, feature: int) -> tuple[float, float]:
-    """A GeoJSON position ``[lon, lat, ...]`` as two finite floats; a one-line error otherwise."""
-    try:
-        lon, lat = float(value[0]), float(value[1])
-        if isinstance(value[0], (str, bool)) or isinstance(value[1], (str, bool)):
-            raise TypeError
-    except (TypeError, ValueError, IndexError):
-        raise InputFileError(path, f"feature {feature}: a position must be [lon, lat] numbers, got {value!r}") from None
-    if not (math.isfinite(lon) and math.isfinite(lat)):
-        raise InputFileError(path, f"feature {feature}: a position is not finite ({value!r})")
-    if not (-180 <= lon <= 180 and -90 <= lat <= 90):
-        raise InputFileError(path, f"feature {feature}: position {value!r} is not WGS84 [lon, lat]")
-    return lon, lat
-
-
 def truth_from_footprints(path: str | Path, frame: GeoFrame) -> GroundTruth:
-    """Building footprints from a GeoJSON FeatureCollection (WGS84 Polygons), every wall fully observable."""
+    """Building footprints from a GeoJSON FeatureCollection (WGS84 Polygons), every wall fully observable.
+
+    Features of another ``kind`` than ``building`` and other geometries are skipped; a feature that is not an
+    object, or whose ``geometry`` or ``properties`` is neither an object nor null, is a one-line error.
+    """
     path = Path(path)
-    data = read_json(path)
-    if not isinstance(data, dict) or data.get("type") != "FeatureCollection":
-        raise InputFileError(path, "expected a GeoJSON FeatureCollection of building Polygons")
     walls, building, labels = [], [], []
-    for n, feat in enumerate(data.get("features") or []):
-        if not isinstance(feat, dict):
-            raise InputFileError(path, f"feature {n}: expected a GeoJSON Feature object")
+    for n, feat in enumerate(features_of(path, read_json(path), "a GeoJSON FeatureCollection of building Polygons")):
         geom = feat.get("geometry") or {}
         props = feat.get("properties") or {}
         if props.get("kind", "building") != "building":
             continue
         polys = [geom.get("coordinates")] if geom.get("type") == "Polygon" else \
             geom.get("coordinates") if geom.get("type") == "MultiPolygon" else []
+        if not (isinstance(polys, list) and all(isinstance(rings, list) and all(isinstance(ring, list) for ring in rings)
+                                                for rings in polys)):
+            raise InputFileError(path, f"feature {n}: a {geom['type']}'s coordinates must be nested lists of rings")
         vlabels = props.get("vertex_labels") or []
-        for rings in polys or []:
-            for r_index, ring in enumerate(rings or []):
-                ring = np.asarray([_position(v, path, n) for v in ring], float).reshape(-1, 2)
+        vlabels = vlabels if isinstance(vlabels, list) else []
+        for rings in polys:
+            for r_index, ring in enumerate(rings):
+                ring = np.asarray([wgs84_position(v, path, n) for v in ring], float).reshape(-1, 2)
                 if len(ring) > 1 and np.allclose(ring[0], ring[-1]):
                     ring = ring[:-1]
                 if len(ring) < 2:

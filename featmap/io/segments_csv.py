@@ -62,25 +62,64 @@ def write_segments_csv(path: str | Path, table: SegmentTable) -> Path:
     return atomic_write_text(path, buf.getvalue())
 
 
-def _read_numeric_csv(path: Path, required: tuple[str, ...], text_columns: tuple[str, ...] = ()) -> tuple[list[str], np.ndarray]:
-    """(header without the ``text_columns``, their values (rows, columns)); a one-line error per bad cell."""
+INT64_MIN, INT64_MAX = -(2 ** 63), 2 ** 63 - 1
+
+
+def _integer(cell: str) -> int | None:
+    """The integer a cell holds (``12``, ``12.0``, ``1.2e3``), exactly; None if it is not a whole number."""
+    text = cell.strip()
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        value = float(text)
+    except ValueError:
+        return None
+    return int(value) if value.is_integer() else None
+
+
+@dataclass(frozen=True)
+class _Columns:
+    """A numeric CSV as read: the numeric columns' names, their values as floats (rows, columns) and the
+    integer columns' exact values as int64."""
+
+    header: list[str]
+    data: np.ndarray
+    integers: dict[str, np.ndarray]
+
+
+def _read_numeric_csv(path: Path, required: tuple[str, ...], text_columns: tuple[str, ...] = (),
+                      integer_columns: tuple[str, ...] = ()) -> _Columns:
+    """Read a CSV of numbers (``text_columns`` are skipped; ``integer_columns`` must hold whole numbers that
+    fit an int64); a one-line error naming the file and line for every malformed header or cell.
+
+    Blank lines (empty or only whitespace) are ignored wherever they are.
+    """
     try:
         text = path.read_text(encoding="utf-8-sig")      # a BOM (spreadsheets write one) is not part of the header
     except FileNotFoundError:
         raise InputFileError(path, "file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputFileError(path, f"cannot read ({exc})") from None
-    rows = list(csv.reader(io.StringIO(text)))
+    reader = csv.reader(io.StringIO(text))
+    rows = [(reader.line_num, row) for row in reader if any(cell.strip() for cell in row)]
     if not rows:
         raise InputFileError(path, f"empty file; expected a header {','.join(required)}", line=1)
-    header = [h.strip() for h in rows[0]]
+    header_line, header = rows[0][0], [h.strip() for h in rows[0][1]]
+    repeated = [h for k, h in enumerate(header) if h in header[:k]]
+    if repeated:
+        raise InputFileError(path, f"column '{repeated[0]}' appears more than once in the header "
+                                   f"({','.join(header)})", line=header_line)
     missing = [c for c in required if c not in header]
     if missing:
         raise InputFileError(path, f"missing column(s) {', '.join(missing)}; the header must contain "
-                                   f"{','.join(required)} (found {','.join(header)})", line=1)
+                                   f"{','.join(required)} (found {','.join(header)})", line=header_line)
     numeric = [c for c, h in enumerate(header) if h not in text_columns]
+    whole = [c for c, h in enumerate(header) if h in integer_columns]
     data = np.empty((len(rows) - 1, len(numeric)))
-    for n, row in enumerate(rows[1:], start=2):
+    integers = np.empty((len(rows) - 1, len(whole)), np.int64)
+    for r, (n, row) in enumerate(rows[1:]):
         if len(row) != len(header):
             raise InputFileError(path, f"expected {len(header)} values, found {len(row)}", line=n)
         for k, c in enumerate(numeric):
@@ -91,28 +130,44 @@ def _read_numeric_csv(path: Path, required: tuple[str, ...], text_columns: tuple
                 raise InputFileError(path, f"column '{header[c]}': not a number: {cell!r}", line=n) from None
             if not math.isfinite(value):
                 raise InputFileError(path, f"column '{header[c]}': {cell.strip()} is not a finite number", line=n)
-            data[n - 2, k] = value
-    return [header[c] for c in numeric], data
+            data[r, k] = value
+        for k, c in enumerate(whole):
+            cell = row[c]
+            value = _integer(cell)
+            if value is None:
+                raise InputFileError(path, f"column '{header[c]}': not an integer: {cell.strip()}", line=n)
+            if not INT64_MIN <= value <= INT64_MAX:
+                raise InputFileError(path, f"column '{header[c]}': {cell.strip()} is outside the 64-bit "
+                                           f"integer range", line=n)
+            integers[r, k] = value
+    return _Columns(header=[header[c] for c in numeric], data=data,
+                    integers={header[c]: integers[:, k] for k, c in enumerate(whole)})
+
+
+def _first_occurrences(scan: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """(N,) bool: True for the first row of every distinct (scan, x1, y1, x2, y2), compared exactly."""
+    order = np.lexsort((segments[:, 3], segments[:, 2], segments[:, 1], segments[:, 0], scan))
+    same = np.zeros(len(order), bool)
+    if len(order):
+        same[1:] = (scan[order][1:] == scan[order][:-1]) & (segments[order][1:] == segments[order][:-1]).all(axis=1)
+    first = np.zeros(len(order), bool)
+    first[order[~same]] = True
+    return first
 
 
 def read_segments_csv(path: str | Path) -> SegmentTable:
-    """Read a ``segments.csv``; zero-length rows are skipped and counted (``skipped_zero_length``)."""
+    """Read a ``segments.csv``; zero-length rows are skipped and counted (``skipped_zero_length``), and so
+    are rows repeating an earlier row's scan and endpoints (``skipped_duplicates``)."""
     path = Path(path)
-    header, data = _read_numeric_csv(path, SEGMENT_COLUMNS)
-    col = {h: data[:, k] for k, h in enumerate(header)}
-    scan = col["scan"]
-    bad = np.flatnonzero(scan != np.round(scan))
-    if len(bad):
-        raise InputFileError(path, f"column 'scan': not an integer: {scan[bad[0]]}", line=int(bad[0]) + 2)
-    segments = np.stack([col[c] for c in ("x1", "y1", "x2", "y2")], axis=1) if len(data) else np.zeros((0, 4))
+    table = _read_numeric_csv(path, SEGMENT_COLUMNS, integer_columns=("scan",))
+    col = {h: table.data[:, k] for k, h in enumerate(table.header)}
+    scan = table.integers["scan"]
+    segments = np.stack([col[c] for c in ("x1", "y1", "x2", "y2")], axis=1)
     nonzero = (segments[:, 0] != segments[:, 2]) | (segments[:, 1] != segments[:, 3])
-    keys = np.column_stack([scan, segments])
-    _, first = np.unique(keys, axis=0, return_index=True)
-    unique = np.zeros(len(keys), bool)
-    unique[first] = True
+    unique = _first_occurrences(scan, segments)
     keep = nonzero & unique
-    extra = {h: col[h][keep] for h in header if h not in SEGMENT_COLUMNS}
-    return SegmentTable(scan=scan[keep].astype(np.int64), segments=segments[keep], extra=extra,
+    extra = {h: col[h][keep] for h in table.header if h not in SEGMENT_COLUMNS}
+    return SegmentTable(scan=scan[keep], segments=segments[keep], extra=extra,
                         skipped_zero_length=int((~nonzero).sum()), skipped_duplicates=int((nonzero & ~unique).sum()))
 
 
@@ -132,10 +187,10 @@ def write_fused_csv(path: str | Path, segments: np.ndarray, support: np.ndarray,
 
 
 def read_fused_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a ``fused_<method>.csv``: returns (segments (M, 4), support (M,))."""
+    """Read a ``fused_<method>.csv``: returns (segments (M, 4), support (M,); 1 each without a ``support``)."""
     path = Path(path)
-    header, data = _read_numeric_csv(path, ("x1", "y1", "x2", "y2"), TEXT_COLUMNS)
-    col = {h: data[:, k] for k, h in enumerate(header)}
-    segments = np.stack([col[c] for c in ("x1", "y1", "x2", "y2")], axis=1) if len(data) else np.zeros((0, 4))
-    support = col["support"].astype(np.int64) if "support" in col else np.ones(len(segments), np.int64)
+    table = _read_numeric_csv(path, ("x1", "y1", "x2", "y2"), TEXT_COLUMNS, integer_columns=("support",))
+    col = {h: table.data[:, k] for k, h in enumerate(table.header)}
+    segments = np.stack([col[c] for c in ("x1", "y1", "x2", "y2")], axis=1)
+    support = table.integers.get("support", np.ones(len(segments), np.int64))
     return segments, support

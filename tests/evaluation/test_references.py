@@ -55,6 +55,34 @@ def test_empty_or_wrong_collections_fail(tmp_path):
         truth_from_footprints(tmp_path / "x.geojson", FRAME)
 
 
+
+@pytest.mark.parametrize("features,match", [
+    ([{"type": "Feature", "properties": ["kind", "fence"],
+       "geometry": {"type": "Polygon", "coordinates": [[[8.42, 49.01], [8.43, 49.01], [8.43, 49.02]]]}}],
+     r"fp.geojson: feature 0: 'properties' must be an object or null, got list"),
+    ([{"type": "Feature", "properties": {}, "geometry": "Polygon"}],
+     r"fp.geojson: feature 0: 'geometry' must be an object or null, got str"),
+    ([None], r"fp.geojson: feature 0: expected a GeoJSON Feature object, got null"),
+    ({"type": "Feature"}, r"fp.geojson: 'features' must be a list of GeoJSON Features, got dict"),
+    ([{"type": "Feature", "properties": {}, "geometry": {"type": "Polygon", "coordinates": 5}}],
+     r"fp.geojson: feature 0: a Polygon's coordinates must be nested lists of rings"),
+    ([{"type": "Feature", "properties": {}, "geometry": {"type": "Polygon", "coordinates": [[[8.42]]]}}],
+     r"fp.geojson: feature 0: a position must be \[lon, lat\] numbers, got \[8.42\]"),
+])
+def test_malformed_features_fail_in_one_line(tmp_path, features, match):
+    with pytest.raises(InputFileError, match=match):
+        truth_from_footprints(_write(tmp_path, features), FRAME)
+
+
+def test_null_properties_and_odd_vertex_labels_are_read_as_empty(tmp_path):
+    ring = _square(FRAME)
+    path = _write(tmp_path, [{"type": "Feature", "properties": None, "geometry": {"type": "Polygon", "coordinates": [ring]}},
+                             {"type": "Feature", "properties": {"vertex_labels": 5},
+                              "geometry": {"type": "Polygon", "coordinates": [_square(FRAME, 20)]}}])
+    truth = truth_from_footprints(path, FRAME)
+    assert truth.walls.shape == (8, 4) and truth.building.tolist() == ["0"] * 4 + ["1"] * 4
+    assert (truth.labels == "").all()
+
 def test_simulator_truth_of_a_drive_and_its_plugin(case1_drive):
     truth = load_simulator_truth(case1_drive.drive_dir / "truth")
     assert len(truth.walls) == 4 and sorted(truth.labels.reshape(-1).tolist()) == sorted("aabbccdd")

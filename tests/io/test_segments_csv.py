@@ -61,3 +61,65 @@ def test_fused_csv_with_the_drives_of_a_merged_map_reads_back(tmp_path):
     assert lines[0] == "x1,y1,x2,y2,support,length_m,n_drives,drives" and lines[1].endswith(",2,a;b")
     back, support = read_fused_csv(tmp_path / "f.csv")
     assert np.array_equal(back, segs) and support.tolist() == [7, 2]
+
+
+@pytest.mark.parametrize("content,match", [
+    ("scan,x1,y1,x2,y2,x1\n0,1,2,3,4,9\n", r"s.csv:1: column 'x1' appears more than once in the header"),
+    ("scan,x1,y1,x2,y2, scan\n0,1,2,3,4,5\n", r"s.csv:1: column 'scan' appears more than once"),
+    ("scan,x1,y1,x2,y2\n0,1,2,3,4\n1e30,1,2,3,4\n", r"s.csv:3: column 'scan': 1e30 is outside the 64-bit integer range"),
+    ("scan,x1,y1,x2,y2\n-1e30,1,2,3,4\n", r"s.csv:2: column 'scan': -1e30 is outside the 64-bit integer range"),
+    ("scan,x1,y1,x2,y2\n9223372036854775808,1,2,3,4\n", r"s.csv:2: column 'scan': 9223372036854775808 is outside"),
+    ("scan,x1,y1,x2,y2\n0,1,2,3,4\n2.5,1,2,3,4\n", r"s.csv:3: column 'scan': not an integer: 2.5"),
+])
+def test_repeated_columns_and_bad_scan_ids_name_file_and_line(tmp_path, content, match):
+    path = tmp_path / "s.csv"
+    path.write_text(content)
+    with pytest.raises(InputFileError, match=match):
+        read_segments_csv(path)
+
+
+def test_fused_csv_with_a_repeated_column_or_fractional_support_fails(tmp_path):
+    path = tmp_path / "f.csv"
+    path.write_text("x1,y1,x2,y2,support,x2\n0,0,1,0,3,7\n")
+    with pytest.raises(InputFileError, match=r"f.csv:1: column 'x2' appears more than once in the header"):
+        read_fused_csv(path)
+    path.write_text("x1,y1,x2,y2,support\n0,0,1,0,2.5\n")
+    with pytest.raises(InputFileError, match=r"f.csv:2: column 'support': not an integer: 2.5"):
+        read_fused_csv(path)
+
+
+def test_scan_ids_are_read_exactly_over_the_whole_int64_range(tmp_path):
+    path = tmp_path / "s.csv"
+    path.write_text("scan,x1,y1,x2,y2\n9007199254740993,0,0,1,0\n9007199254740992,0,0,1,0\n"
+                    "-9223372036854775808,0,0,2,0\n9223372036854775807,0,0,3,0\n1e3,0,0,4,0\n")
+    table = read_segments_csv(path)
+    assert table.scan.dtype == np.int64 and table.skipped_duplicates == 0
+    assert table.scan.tolist() == [2 ** 53 + 1, 2 ** 53, -(2 ** 63), 2 ** 63 - 1, 1000]
+
+
+def test_duplicate_rows_are_still_skipped_and_counted(tmp_path):
+    path = tmp_path / "s.csv"
+    path.write_text("scan,x1,y1,x2,y2\n1,0,0,1,0\n0,0,0,1,0\n1,0,0,1,0\n1,0,0,1,0\n0,0,0,2,0\n")
+    table = read_segments_csv(path)
+    assert table.scan.tolist() == [1, 0, 0] and table.skipped_duplicates == 2
+    assert table.segments[:, 2].tolist() == [1, 1, 2]
+
+
+def test_blank_lines_are_ignored(tmp_path):
+    path = tmp_path / "s.csv"
+    path.write_text("\nscan,x1,y1,x2,y2\n0,1,2,3,4\n  \n1,5,6,7,8\n\n \t\n")
+    table = read_segments_csv(path)
+    assert table.scan.tolist() == [0, 1] and table.segments.tolist() == [[1, 2, 3, 4], [5, 6, 7, 8]]
+    path.write_text("x1,y1,x2,y2,support\n0,0,1,0,3\n\n")
+    segments, support = read_fused_csv(path)
+    assert segments.tolist() == [[0, 0, 1, 0]] and support.tolist() == [3]
+
+
+def test_line_numbers_count_the_blank_lines(tmp_path):
+    path = tmp_path / "s.csv"
+    path.write_text("scan,x1,y1,x2,y2\n\n0,1,2,3,4\n\n1,1,abc,3,4\n")
+    with pytest.raises(InputFileError, match=r"s.csv:5: column 'y1': not a number: 'abc'"):
+        read_segments_csv(path)
+    path.write_text("  \n\n")
+    with pytest.raises(InputFileError, match=r"s.csv:1: empty file"):
+        read_segments_csv(path)
