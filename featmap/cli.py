@@ -107,7 +107,7 @@ def _reporter():
 def fuse(
     segments_csv: Path = typer.Argument(..., help="segments.csv with columns scan,x1,y1,x2,y2 (world frame, metres)."),
     method: str = MethodOpt,
-    out: Path = typer.Option(..., "--out", "-o", help="Output folder for fused_<method>.csv and config.yaml."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder for fused_<method>.csv, config.yaml and fuse.json (replaced whole)."),
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
 ):
@@ -120,7 +120,7 @@ def fuse(
     cfg = load_config(config, set_ or [])
     methods = resolve_methods(method)
     table = read_segments_csv(segments_csv)
-    fuse_and_write(table, methods, cfg, out, _reporter())
+    fuse_and_write(table, methods, cfg, out, _reporter(), source=segments_csv)
 
 
 def source_spec(drive: str | None, data_dir: Path, world: str | None, dataset: str | None, source: str | None,

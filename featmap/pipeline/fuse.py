@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 from featmap.fusion import FusionConfig, FusionResult, fuse, prepare_method
+from featmap.io.atomic import atomic_write_text
 from featmap.io.segments_csv import SegmentTable, write_fused_csv
 from featmap.reporting import NullReporter, Reporter
 
+FUSE_RECORD = "fuse.json"
+"""What ``featmap fuse`` fused (source, counts): it marks a folder as its output."""
 PROGRESS_MIN_SEGMENTS = 200_000
 """Fusions of at least this many segments (a few seconds and more) show a progress bar of their own."""
 
@@ -64,26 +68,29 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
 
 
 def fuse_and_write(table: SegmentTable, methods: list[str], config, out: str | Path,
-                   reporter: Reporter = NullReporter()) -> list[MethodRun]:
-    """Fuse a segment table and write ``fused_<method>.csv`` + ``config.yaml`` into ``out``.
+                   reporter: Reporter = NullReporter(), source: str | Path | None = None) -> list[MethodRun]:
+    """Fuse a segment table and write ``fused_<method>.csv``, ``config.yaml`` and ``fuse.json`` into ``out``.
 
-    ``config`` is the whole run config (saved as config.yaml). Everything is computed before the first
-    file is written, so a failure leaves nothing behind.
+    ``config`` is the whole config (saved as config.yaml); ``source``: the file the table was read from
+    (an ``out`` that holds it is refused). ``out`` is replaced whole, like a run folder: it is written
+    into a temporary twin and swapped in at the end, so it never mixes the files of two fusions (a
+    previous fusion's ``fused_<method>.csv`` beside a new config), and a failure leaves it as it was. A
+    folder that holds other files (a run folder, say) is refused.
     """
     from featmap.pipeline.config import save_config
-    from featmap.pipeline.run_folder import RunFolderError
+    from featmap.pipeline.run_folder import RunFolder
 
     out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise RunFolderError(f"--out {out}: exists and is not a folder")
     import_seconds = warm_up(methods)
-    runs = fuse_methods(table, methods, config.fusion, reporter)
-    try:
+    with RunFolder(out, marker=FUSE_RECORD, inputs=[source] if source is not None else []) as folder:
+        runs = fuse_methods(table, methods, config.fusion, reporter)
         for run in runs:
-            write_fused_csv(out / f"fused_{run.name}.csv", run.result.segments, run.result.support)
-        save_config(config, out / "config.yaml")
-    except OSError as exc:
-        raise RunFolderError(f"--out {out}: cannot write ({exc.strerror})") from None
+            write_fused_csv(folder.tmp / f"fused_{run.name}.csv", run.result.segments, run.result.support)
+        save_config(config, folder.tmp / "config.yaml")
+        record = {"source": None if source is None else str(Path(source).absolute()), "segments": len(table),
+                  "features": {run.name: len(run.result) for run in runs}}
+        atomic_write_text(folder.tmp / FUSE_RECORD, json.dumps(record, indent=1) + "\n")
+        folder.commit()
     rows = [[run.name, str(len(table)), str(len(run.result)), str(run.result.clusters_dropped),
              str(run.result.skipped_zero_length + table.skipped_zero_length), f"{run.seconds:.3f}"] for run in runs]
     reporter.table("featmap fuse", ["method", "segments in", "features out", "clusters dropped", "zero-length skipped",
@@ -94,5 +101,5 @@ def fuse_and_write(table: SegmentTable, methods: list[str], config, out: str | P
         reporter.warning(f"skipped {table.skipped_duplicates} duplicate row(s) of the input (same scan and endpoints "
                          "as an earlier row; they would count twice in a feature's support)")
     reporter.info(f"loading the methods' libraries and compiled code took {import_seconds:.2f} s (not in the seconds above)")
-    reporter.info(f"wrote {', '.join(f'fused_{r.name}.csv' for r in runs)} and config.yaml to {out}")
+    reporter.info(f"wrote {', '.join(f'fused_{r.name}.csv' for r in runs)}, config.yaml and {FUSE_RECORD} to {out}")
     return runs

@@ -57,3 +57,21 @@ def test_bad_inputs_fail_in_one_line_and_write_nothing(tmp_path):
         lines = [line for line in res.output.splitlines() if line.strip()]
         assert len(lines) == 1 and needle in lines[0], res.output
         assert not (tmp_path / f"o{n}").exists()
+
+
+def test_a_second_fusion_replaces_the_folder_whole_and_never_a_run_folder(tmp_path):
+    seg = _segments_csv(tmp_path / "segments.csv")
+    out = tmp_path / "o"
+    assert runner.invoke(app, ["fuse", str(seg), "--method", "all", "--out", str(out)]).exit_code == 0
+    res = runner.invoke(app, ["fuse", str(seg), "--method", "proposed", "--out", str(out),
+                              "--set", "fusion.meanshift.center_bandwidth_m=50"])
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in out.iterdir()) == ["config.yaml", "fuse.json", "fused_proposed.csv"]
+    # a folder holding anything else (a run folder, say), or the input itself, is left alone
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "metrics.json").write_text("{}")
+    for target, needle in ((run, "not a featmap output folder"), (tmp_path, "an input of this run")):
+        res = runner.invoke(app, ["fuse", str(seg), "--method", "proposed", "--out", str(target)])
+        assert res.exit_code == 2 and needle in res.output, res.output
+    assert (run / "metrics.json").read_text() == "{}" and seg.is_file()
