@@ -174,7 +174,9 @@ def open_drive_folder(location: str | Path, frames: str | None = None, skip_bad_
     """A KITTI raw drive from its folder ``ROOT/YYYY_MM_DD/YYYY_MM_DD_drive_NNNN_sync`` (the registry's opener)."""
     folder = Path(location)
     drive = folder.name.removesuffix("_sync")
-    parse_drive(drive)
+    if not DRIVE_RE.match(drive.strip()):
+        raise DatasetError(f"--source {location}: not a KITTI raw drive folder "
+                           "(expected ROOT/YYYY_MM_DD/YYYY_MM_DD_drive_NNNN_sync)")
     return KittiRawDataset(folder.parent.parent, drive, frames, skip_bad_scans)
 
 

@@ -110,6 +110,9 @@ def test_bad_drive_flags(case1_drive, tmp_path):
                    "--frames 25:100: 2000_01_01_drive_0001 has 40 frames (0..39)")
     one_line_error(cli(*run_args(case1_drive, tmp_path / "r", tmp_path / "c", "--frames", "a:b")), "expected integers")
     one_line_error(cli("run", "--dataset", "pcap", "--source", tmp_path, "--out", tmp_path / "r"), "unknown format")
+    (tmp_path / "tiny.yaml").write_text("name: x\n")
+    one_line_error(cli("run", "--dataset", "kitti_raw", "--source", tmp_path / "tiny.yaml", "--out", tmp_path / "r"),
+                   "tiny.yaml: not a KITTI raw drive folder")
     one_line_error(cli(*run_args(case1_drive, tmp_path / "r", tmp_path / "c", "--method", "kmeans")), "unknown method 'kmeans'")
     assert not (tmp_path / "r").exists()
 
