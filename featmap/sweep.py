@@ -102,7 +102,7 @@ class SweepSpec(BaseModel):
     location: Optional[str] = None
     frames: Optional[str] = None
     truth: Optional[str] = None
-    methods: list[str] = ["proposed"]
+    methods: list[str] = Field(["proposed"], min_length=1)
     grid: dict[str, Any]
     samples: int = Field(0, ge=0)
     seed: int = 0
@@ -165,12 +165,19 @@ def applies_to(key: str, method: str) -> bool:
     return section == method or section not in FUSION_METHODS
 
 
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
 def expand(spec: SweepSpec, base: dict, source: str = "sweep") -> tuple[list[Combination], dict[str, FeatmapConfig]]:
     """Validate keys, values and every combination; return the combinations and their configs."""
     leaves = set(leaf_keys(FeatmapConfig))
     values: dict[str, list] = {}
     for key, val in spec.grid.items():
         if key not in leaves:
+            inside = sorted(leaf for leaf in leaves if leaf.startswith(key + "."))
+            if inside:
+                raise ConfigError(f"{source}: grid key '{key}' is a section; sweep its settings, e.g. '{inside[0]}'")
             hint = closest_key(key, FeatmapConfig)
             raise ConfigError(f"{source}: grid key '{key}' does not exist" + (f"; did you mean '{hint}'?" if hint else ""))
         if not key.startswith("fusion."):
@@ -179,11 +186,19 @@ def expand(spec: SweepSpec, base: dict, source: str = "sweep") -> tuple[list[Com
         vals = val.values() if isinstance(val, Range) else list(val)
         if not vals:
             raise ConfigError(f"{source}: grid key '{key}' has no values")
+        same = [("number", float(v)) if _number(v) else (type(v).__name__, repr(v)) for v in vals]
+        repeated = [v for k, v in enumerate(vals) if same[k] in same[:k]]
+        if repeated:
+            raise ConfigError(f"{source}: grid key '{key}' lists the value {repeated[0]!r} more than once")
         values[key] = vals
     for name in spec.methods:
         if name not in FUSION_METHODS:
             raise ConfigError(f"{source}: unknown method '{name}'; allowed: {', '.join(FUSION_METHODS)}")
     keys_of = {name: [k for k in values if applies_to(k, name)] for name in spec.methods}
+    unused = [k for k in values if not any(k in keys for keys in keys_of.values())]
+    if unused:
+        raise ConfigError(f"{source}: grid key '{unused[0]}' applies to none of the methods swept "
+                          f"({', '.join(spec.methods)}); add its method to 'methods' or remove the key")
     total = sum(math.prod(len(values[k]) for k in keys) for keys in keys_of.values())
     limit = spec.samples or MAX_COMBINATIONS
     if total > MAX_COMBINATIONS and not spec.samples:

@@ -35,6 +35,9 @@ def _write(tmp_path, text):
     ("  fusion.proposed.gamma: []", r"grid key 'fusion.proposed.gamma' has no values"),
     ("  extraction.ransac_planes.voxel_size_m: [0.1, 0.2]", r"never re-extracts"),
     ("  fusion.proposed.gamma: [0.5, 1.5]", r"'fusion.proposed.gamma' input should be less than or equal to 1"),
+    ("  fusion.proposed.delta_deg: [5, 5.0, 3]", r"grid key 'fusion.proposed.delta_deg' lists the value 5.0 more than once"),
+    ("  fusion.proposed: [1, 2]", r"grid key 'fusion.proposed' is a section; sweep its settings, e.g. 'fusion.proposed."),
+    ("  fusion.density.lateral_eps_m: [0.2, 0.5]", r"grid key 'fusion.density.lateral_eps_m' applies to none of the methods swept \(proposed\)"),
 ])
 def test_bad_sweeps_fail_before_anything_runs(tmp_path, case1_run, grid, match):
     path = _write(tmp_path, f"input: {case1_run / 'segments.csv'}\nmethods: [proposed]\ngrid:\n{grid}\n")
@@ -46,6 +49,8 @@ def test_bad_sweeps_fail_before_anything_runs(tmp_path, case1_run, grid, match):
 def test_empty_grid_and_unknown_keys(tmp_path):
     with pytest.raises(ConfigError, match="the grid is empty"):
         load_sweep(_write(tmp_path, "input: x.csv\ngrid: {}\n"))
+    with pytest.raises(ConfigError, match="methods: List should have at least 1 item"):
+        load_sweep(_write(tmp_path, "input: x.csv\nmethods: []\ngrid: {fusion.proposed.gamma: [0.5]}\n"))
     with pytest.raises(ConfigError, match="unknown key 'gird'"):
         load_sweep(_write(tmp_path, "input: x.csv\ngird: {a: [1]}\ngrid: {fusion.proposed.gamma: [0.1]}\n"))
 
