@@ -873,7 +873,12 @@ def report_batch(result: BatchResult, reporter: Reporter) -> None:
         reporter.table(f"merged map: {len(m.drives)} drives, {m.segments} segments{against}", mcols, mrows)
         for name, why in m.left_out.items():
             reporter.warning(f"merged map: left out {name}: {why}")
-    reporter.info(f"wrote {len(s.drives)} run folders, summary.json" + (", merged/" if m is not None else "")
+    written = sum(d.status == "done" for d in s.drives)
+    kept = sum(d.status == "skipped" for d in s.drives)
+    failed = sum(d.status == "failed" for d in s.drives)
+    parts = [f"{written} run folder{'s' if written != 1 else ''}"] + ([f"{kept} kept (up to date)"] if kept else []) \
+        + ([f"{failed} failed"] if failed else [])
+    reporter.info(f"wrote {', '.join(parts)}, summary.json" + (", merged/" if m is not None else "")
                   + f" to {Path(s.drives[0].run_dir).parent if s.drives else ''}")
 
 

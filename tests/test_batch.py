@@ -173,6 +173,7 @@ def test_a_failing_drive_is_reported_and_the_others_finish(first_batch, dask_cli
                               dask_client.scheduler.address])
     assert res.exit_code == 1, res.output
     assert "1 of 2 drive(s) failed" in res.output
+    assert "wrote 1 run folder, 1 failed, summary.json, merged/" in " ".join(res.output.split())
     summary = read_batch_summary(tmp_path / "out" / "summary.json")
     tiny, bad = summary.drives
     assert tiny.status == "done" and bad.status == "failed"
@@ -186,6 +187,7 @@ def test_a_failing_drive_is_reported_and_the_others_finish(first_batch, dask_cli
                               dask_client.scheduler.address])
     assert res.exit_code == 0, res.output
     assert [d.status for d in read_batch_summary(tmp_path / "out" / "summary.json").drives] == ["skipped", "done"]
+    assert "wrote 1 run folder, 1 kept (up to date), summary.json" in " ".join(res.output.split())
 
 
 def test_scans_as_tasks_of_their_own_give_the_same_run(first_batch, dask_client, tiny_worlds, tmp_path):
