@@ -102,14 +102,15 @@ class SegmentIndex:
         samples, self.owner = dense_samples(self.segments, candidate_step)
         self.tree = cKDTree(samples) if len(samples) else None
 
-    def pairs(self, points: np.ndarray, chunk: int = 200_000) -> tuple[np.ndarray, np.ndarray]:
-        """All (point index, segment index) pairs within the tolerance, each pair once."""
+    def pairs(self, points: np.ndarray, chunk: int = 200_000, workers: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """All (point index, segment index) pairs within the tolerance, each pair once (``workers``: threads
+        of the KD-tree queries)."""
         out_p, out_s = [], []
         if self.tree is None or len(points) == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
         for start in range(0, len(points), chunk):
             block = points[start:start + chunk]
-            hits = self.tree.query_ball_point(block, self.radius, return_sorted=False)
+            hits = self.tree.query_ball_point(block, self.radius, return_sorted=False, workers=workers)
             counts = np.fromiter((len(h) for h in hits), dtype=np.int64, count=len(block))
             if counts.sum() == 0:
                 continue
@@ -124,19 +125,20 @@ class SegmentIndex:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
         return np.concatenate(out_p), np.concatenate(out_s)
 
-    def near(self, points: np.ndarray) -> np.ndarray:
-        """(P,) True where a point lies within the tolerance of some segment."""
+    def near(self, points: np.ndarray, workers: int = 1) -> np.ndarray:
+        """(P,) True where a point lies within the tolerance of some segment (``workers``: threads of the
+        KD-tree queries)."""
         points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
         inside = np.zeros(len(points), dtype=bool)
         if self.tree is None or len(points) == 0:
             return inside
         # The nearest sample settles most points: within tol of a sample is within tol of its segment;
         # beyond ``radius`` of every sample is beyond tol of every segment. The rest get exact distances.
-        d, _ = self.tree.query(points, distance_upper_bound=self.radius)
+        d, _ = self.tree.query(points, distance_upper_bound=self.radius, workers=workers)
         inside[d <= self.tolerance] = True
         unsure = np.flatnonzero((d > self.tolerance) & np.isfinite(d))
         if len(unsure):
-            p, _ = self.pairs(points[unsure])
+            p, _ = self.pairs(points[unsure], workers=workers)
             inside[unsure[np.unique(p)]] = True
         return inside
 
@@ -144,21 +146,47 @@ class SegmentIndex:
 @dataclass(frozen=True)
 class MapReference:
     """What every fused map of one run is scored against: the scan points (subsampled when
-    ``max_points`` is set) with their KD-tree, and the wall points (near a raw extracted segment)."""
+    ``max_points`` is set) with their KD-tree, and which of them are wall points (near a raw extracted
+    segment)."""
 
     tree: cKDTree | None
     points: int
-    wall_points: np.ndarray
+    wall: np.ndarray
     raw_count: int
     config: TruthFreeConfig
+    workers: int = 1
+
+    @property
+    def wall_points(self) -> np.ndarray:
+        """(W, 2) the wall points."""
+        return self.tree.data[self.wall] if self.tree is not None else np.zeros((0, 2))
 
 
-def map_reference(points, raw, config: TruthFreeConfig = TruthFreeConfig()) -> MapReference:
+def covered_points(segments: np.ndarray, tree: cKDTree, tolerance: float, candidate_step: float) -> np.ndarray:
+    """(P,) True where a point of ``tree`` lies within ``tolerance`` of one of the (M, 4) ``segments``
+    (exact distances). The segments' samples and the points are matched tree against tree, which is
+    fast when the points outnumber the samples (a fused map against millions of scan points)."""
+    covered = np.zeros(tree.n, dtype=bool)
+    segments = as_segments(segments)
+    if len(segments) == 0 or tree.n == 0:
+        return covered
+    samples, owner = dense_samples(segments, candidate_step)
+    radius = math.hypot(tolerance, 0.5 * candidate_step)
+    pairs = cKDTree(samples).sparse_distance_matrix(tree, radius, output_type="ndarray")
+    covered[pairs["j"][pairs["v"] <= tolerance]] = True
+    rest = pairs[(pairs["v"] > tolerance) & ~covered[pairs["j"]]]
+    close = _distance_to(tree.data[rest["j"]], segments[owner[rest["i"]]]) <= tolerance
+    covered[rest["j"][close]] = True
+    return covered
+
+
+def map_reference(points, raw, config: TruthFreeConfig = TruthFreeConfig(), workers: int = 1) -> MapReference:
     """Prepare the reference once per run (the costly part: it does not depend on the fused map).
 
     Args:
         points: (P, 2) every scan point in the world frame (or the wall candidates of a 3D LiDAR).
         raw: (N, 4) the raw extracted segments (world frame) that were fused.
+        workers: threads of the KD-tree queries (here and when fused maps are scored against it).
     """
     raw = as_segments(raw)
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
@@ -167,9 +195,9 @@ def map_reference(points, raw, config: TruthFreeConfig = TruthFreeConfig()) -> M
         pick = np.random.default_rng(config.seed).choice(len(pts), config.max_points, replace=False)
         pts = pts[np.sort(pick)]
     tol = config.tolerance_m
-    wall = SegmentIndex(raw, tol, config.candidate_step_m).near(pts) if len(raw) else np.zeros(len(pts), bool)
-    return MapReference(tree=cKDTree(pts) if len(pts) else None, points=len(pts), wall_points=pts[wall],
-                        raw_count=len(raw), config=config)
+    wall = SegmentIndex(raw, tol, config.candidate_step_m).near(pts, workers) if len(raw) else np.zeros(len(pts), bool)
+    return MapReference(tree=cKDTree(pts) if len(pts) else None, points=len(pts), wall=wall,
+                        raw_count=len(raw), config=config, workers=workers)
 
 
 def score_map(fused, reference: MapReference) -> TruthFreeMetrics:
@@ -183,10 +211,10 @@ def score_map(fused, reference: MapReference) -> TruthFreeMetrics:
     samples, owner, weight = sample_segments(fused, config.step_m)
     precision = redundancy = math.nan
     if m and reference.tree is not None:
-        d, _ = reference.tree.query(samples, distance_upper_bound=tol * (1 + 1e-9))
+        d, _ = reference.tree.query(samples, distance_upper_bound=tol * (1 + 1e-9), workers=reference.workers)
         precision = float(weight[d <= tol].sum() / weight.sum())
     if m:
-        p, s = SegmentIndex(fused, tol, config.candidate_step_m).pairs(samples)
+        p, s = SegmentIndex(fused, tol, config.candidate_step_m).pairs(samples, workers=reference.workers)
         other = s != owner[p]
         direction = np.arctan2(fused[:, 3] - fused[:, 1], fused[:, 2] - fused[:, 0])
         diff = np.abs(np.mod(direction[s[other]] - direction[owner[p[other]]] + np.pi / 2, np.pi) - np.pi / 2)
@@ -194,15 +222,15 @@ def score_map(fused, reference: MapReference) -> TruthFreeMetrics:
         counts = np.bincount(p[other][parallel], minlength=len(samples))
         redundancy = float((weight * counts).sum() / weight.sum())
 
-    wall = reference.wall_points
+    n_wall = int(reference.wall.sum())
     recall = math.nan
-    if len(wall):
-        covered = SegmentIndex(fused, tol, config.candidate_step_m).near(wall) if m else np.zeros(0, bool)
-        recall = float(covered.sum() / len(wall)) if m else 0.0
+    if n_wall:
+        covered = covered_points(fused, reference.tree, tol, config.candidate_step_m)
+        recall = float((covered & reference.wall).sum() / n_wall)
     return TruthFreeMetrics(
         precision=precision, recall=recall, redundancy=redundancy, count=m,
         compression=(reference.raw_count / m) if m else math.inf, raw_count=reference.raw_count,
-        points=reference.points, wall_points=len(wall), fused_length_m=float(segment_lengths(fused).sum()))
+        points=reference.points, wall_points=n_wall, fused_length_m=float(segment_lengths(fused).sum()))
 
 
 def truth_free_metrics(fused, points, raw, config: TruthFreeConfig = TruthFreeConfig()) -> TruthFreeMetrics:

@@ -44,6 +44,7 @@ class EvaluationContext:
         config: the ``evaluation:`` section.
         points: (P, 2) the scans' structure points in the world frame (from the extractor), or None.
         raw_segments: (N, 4) the extracted segments in the world frame, or None.
+        workers: threads a reference may use (the run's worker count).
     """
 
     location: Path | None
@@ -52,6 +53,7 @@ class EvaluationContext:
     config: EvaluationConfig
     points: np.ndarray | None = None
     raw_segments: np.ndarray | None = None
+    workers: int = 1
 
 
 @dataclass(frozen=True)
@@ -117,7 +119,8 @@ class MapQuality:
     def prepare(self, context: EvaluationContext) -> Reference | None:
         if context.points is None or context.raw_segments is None or not len(context.points):
             return None
-        return Reference(map_reference(context.points, context.raw_segments, context.config.map), "scan points")
+        return Reference(map_reference(context.points, context.raw_segments, context.config.map, context.workers),
+                         "scan points")
 
     def score(self, reference: Reference, fused: np.ndarray) -> dict:
         return score_map(fused, reference.data).to_dict()

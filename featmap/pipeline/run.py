@@ -109,7 +109,7 @@ class MappingPipeline:
             runs = fuse_methods(table, self.methods, self.config.fusion, self.reporter)
             t_eval = time.perf_counter()
             context = EvaluationContext(source.location, extraction.frames, source.geo_origin, self.config.evaluation,
-                                        extraction.world_points(poses), table.segments)
+                                        extraction.world_points(poses), table.segments, self.executor.workers)
             references = prepare_references(context)
             scores = score_methods(runs, references)
             eval_seconds = time.perf_counter() - t_eval

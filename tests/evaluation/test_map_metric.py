@@ -96,3 +96,20 @@ def test_empty_map_and_subsampling():
     assert m.to_dict()["precision"] is None and m.to_dict()["compression"] is None
     sub = truth_free_metrics(SQUARE, pts, _raw_views(SQUARE), TruthFreeConfig(max_points=1000))
     assert sub.points == 1000 and sub.recall == pytest.approx(1.0)
+
+
+def test_covered_points_are_the_points_near_a_segment_exactly():
+    from scipy.spatial import cKDTree
+
+    from featmap.evaluation.map_metric import SegmentIndex, covered_points
+
+    rng = np.random.default_rng(3)
+    segments = np.column_stack([rng.uniform(0, 20, (40, 2)), rng.uniform(0, 20, (40, 2))])
+    segments[:5, 2:] = segments[:5, :2]                       # zero-length ones too
+    base = segments[rng.integers(0, 40, 20000)]
+    t = rng.uniform(0, 1, (20000, 1))
+    points = base[:, :2] + t * (base[:, 2:] - base[:, :2]) + rng.normal(0, 0.05, (20000, 2))
+    for tol, step in ((0.05, 0.1), (0.03, 0.5)):
+        expected = SegmentIndex(segments, tol, step).near(points)
+        assert 0.2 < expected.mean() < 0.9
+        assert np.array_equal(covered_points(segments, cKDTree(points), tol, step), expected)
