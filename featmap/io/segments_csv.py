@@ -155,6 +155,18 @@ def _first_occurrences(scan: np.ndarray, segments: np.ndarray) -> np.ndarray:
     return first
 
 
+MAX_COORDINATE_M = 1e8
+"""Coordinates are metres of a local or projected frame (UTM northings stay below 1e7)."""
+
+
+def _check_extent(path: Path, segments: np.ndarray) -> None:
+    """A one-line error for a coordinate beyond ``MAX_COORDINATE_M`` (the geometry would overflow)."""
+    far = np.flatnonzero(np.abs(segments).max(axis=1, initial=0.0) > MAX_COORDINATE_M) if len(segments) else []
+    if len(far):
+        raise InputFileError(path, f"a coordinate beyond {MAX_COORDINATE_M:g} m ({np.abs(segments[far[0]]).max():g}); "
+                                   "coordinates are metres of a local or projected frame")
+
+
 def read_segments_csv(path: str | Path) -> SegmentTable:
     """Read a ``segments.csv``; zero-length rows are skipped and counted (``skipped_zero_length``), and so
     are rows repeating an earlier row's scan and endpoints (``skipped_duplicates``)."""
@@ -163,6 +175,7 @@ def read_segments_csv(path: str | Path) -> SegmentTable:
     col = {h: table.data[:, k] for k, h in enumerate(table.header)}
     scan = table.integers["scan"]
     segments = np.stack([col[c] for c in ("x1", "y1", "x2", "y2")], axis=1)
+    _check_extent(path, segments)
     nonzero = (segments[:, 0] != segments[:, 2]) | (segments[:, 1] != segments[:, 3])
     unique = _first_occurrences(scan, segments)
     keep = nonzero & unique

@@ -74,7 +74,7 @@ def add_basemap(ax, frame: GeoFrame, tiles: Tiles = Tiles(), zoom: int | str = "
         img, ext = ctx.bounds2img(w, south, e, north, zoom=zoom, source=provider, ll=False, max_retries=0,
                                   timeout=timeout_s, use_cache=cache_dir is not None)
     except Exception as exc:  # network, HTTP, decoding: a basemap is never worth failing a plot for
-        warnings.warn(f"basemap unavailable ({type(exc).__name__}: {str(exc)[:120]}); plotting without tiles",
+        warnings.warn(f"basemap unavailable ({type(exc).__name__}: {_short(exc)}); plotting without tiles",
                       BasemapWarning, stacklevel=2)
         return False
     left, right, bottom, top = ext
@@ -88,3 +88,11 @@ def add_basemap(ax, frame: GeoFrame, tiles: Tiles = Tiles(), zoom: int | str = "
             ax.text(0.99, 0.01, text[:90], transform=ax.transAxes, ha="right", va="bottom", fontsize=6,
                     bbox={"facecolor": "white", "alpha": 0.7, "edgecolor": "none", "pad": 1})
     return True
+
+
+def _short(exc: Exception, limit: int = 140) -> str:
+    """The gist of an exception's message: without a "(Caused by ...)" tail, cut at a word within ``limit``."""
+    text = " ".join(str(exc).split(" (Caused by")[0].split())
+    if len(text) <= limit:
+        return text
+    return text[:limit].rsplit(" ", 1)[0] + " ..."

@@ -154,3 +154,13 @@ def test_figures_of_runs_with_few_scans_or_no_segments(case1_drive, tmp_path, fr
     for name in ("fig02_feature_circles_one_scan.png", "fig08_global_map.png", "fig10_local_maps_2d.png",
                  "fig13_14_truth_vs_fused.png"):
         assert (out / name).stat().st_size > 5000, name
+
+
+def test_the_basemap_warning_keeps_the_gist_of_a_long_error():
+    from featmap.plotting.basemap import _short
+
+    long = ("HTTPSConnectionPool(host='tile.example.org', port=443): Max retries exceeded with url: /18/1/2.png "
+            "(Caused by NameResolutionError(\"<urllib3.connection.HTTPSConnection object>: Failed to resolve\"))")
+    assert _short(RuntimeError(long)) == ("HTTPSConnectionPool(host='tile.example.org', port=443): Max retries "
+                                          "exceeded with url: /18/1/2.png")
+    assert _short(RuntimeError("word " * 60)).endswith("word ...")
