@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import difflib
 import re
+import typing
 from pathlib import Path
 from typing import Any, Iterable, TypeVar
 
@@ -112,6 +113,8 @@ def apply_overrides(data: dict[str, Any], overrides: Iterable[str], model: type[
         path, value = parse_override(text)
         if ".".join(path) not in known:
             raise ConfigError(f"--set {text}: {unknown_key_message('.'.join(path), model)}")
+        if isinstance(value, bool) and _takes_text(model, path) and not _takes_bool(model, path):
+            value = text.split("=", 1)[1].strip()      # YAML 1.1 reads no/yes/on/off as booleans; a name is meant
         node = data
         for part in path[:-1]:
             child = node.get(part)
@@ -121,6 +124,24 @@ def apply_overrides(data: dict[str, Any], overrides: Iterable[str], model: type[
             node = child
         node[path[-1]] = value
     return data
+
+
+def _field_types(model: type[BaseModel], path: list[str]) -> tuple:
+    """The types a dotted key's field accepts (its annotation, or the members of a Union / Optional)."""
+    for part in path[:-1]:
+        model = model.model_fields[part].annotation
+        if not (isinstance(model, type) and issubclass(model, BaseModel)):
+            return ()
+    annotation = model.model_fields[path[-1]].annotation
+    return typing.get_args(annotation) or (annotation,)
+
+
+def _takes_text(model: type[BaseModel], path: list[str]) -> bool:
+    return str in _field_types(model, path)
+
+
+def _takes_bool(model: type[BaseModel], path: list[str]) -> bool:
+    return bool in _field_types(model, path)
 
 
 def _deep_copy(data: Any) -> Any:

@@ -85,3 +85,8 @@ def test_config_file_that_is_not_utf8_or_is_a_folder(tmp_path):
         load_config(bad)
     with pytest.raises(ConfigError, match=r"is a folder, expected a YAML file"):
         load_config(tmp_path)
+
+
+def test_a_name_that_yaml_reads_as_a_boolean_stays_a_name():
+    assert load_config(None, ["output.tile_source=no"]).output.tile_source == "no"
+    assert load_config(None, ["output.plots=no"]).output.plots is False       # a boolean where one is meant
