@@ -1,8 +1,10 @@
 """A content-keyed cache of per-scan extraction results (sensor-frame segments).
 
 An entry's key is a hash of everything the result depends on: the scan's points (their bytes, shape
-and type), the extractor's name and version, and its config section. A re-simulated drive, a changed
-scan, another extractor setting or a new extractor version therefore never meets a stale entry; poses
+and type), the extractor's name and version, its config section and the source code of its module and
+of the modules every extractor shares (``extraction/base.py``, ``geometry.py``). A re-simulated drive, a
+changed scan, another extractor setting or any edit of the extractor's code therefore never meets a
+stale entry (a version number alone missed edits made without raising it); poses
 and calibration are not in the key because entries are in the sensor frame (the pipeline moves them to
 the world frame afterwards). Each entry also records its own key: an entry that does not match, is
 truncated or unreadable is discarded (and re-made by the caller) instead of being served.
@@ -12,9 +14,11 @@ Layout: ``ROOT/<first two hex digits>/<key>.npz``; writes are atomic (a crash ne
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
+import sys
 import zipfile
 from pathlib import Path
 
@@ -29,15 +33,38 @@ class CacheError(FeatmapError):
     """The cache folder cannot be used (not a folder, not writable)."""
 
 
+SHARED_SOURCES = (Path(__file__).resolve().parents[1] / "extraction" / "base.py",
+                  Path(__file__).resolve().parents[1] / "geometry.py")
+"""Modules every extractor builds on: their source is part of every key."""
+
+
+@functools.lru_cache(maxsize=None)
+def _source_digest(module_file: str) -> str:
+    """Hash of an extractor module's source and of ``SHARED_SOURCES`` (read once per process)."""
+    h = hashlib.blake2b(digest_size=16)
+    for path in (Path(module_file), *SHARED_SOURCES):
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def extractor_source(extractor: Extractor) -> str:
+    """The source digest of ``extractor``: its ``extract`` function's module and the shared modules."""
+    module = sys.modules.get(extractor.extract.__module__)
+    where = getattr(module, "__file__", None)
+    return _source_digest(where) if where else ""
+
+
 def scan_key(points: np.ndarray, extractor: Extractor, section) -> str:
-    """The content key of one scan's extraction: points x extractor x config (hex, 40 chars)."""
+    """The content key of one scan's extraction: points x extractor (name, version, source) x config (hex,
+    40 chars)."""
     h = hashlib.blake2b(digest_size=20)
     pts = np.ascontiguousarray(points)
     h.update(f"{pts.dtype.str}{pts.shape}".encode())
     if pts.size:                                  # (a scan with no return hashes its dtype and shape alone)
         h.update(memoryview(pts).cast("B"))
     h.update(json.dumps({"extractor": extractor.name, "version": extractor.version,
-                         "config": section.model_dump(mode="json")}, sort_keys=True).encode())
+                         "source": extractor_source(extractor), "config": section.model_dump(mode="json")},
+                        sort_keys=True).encode())
     return h.hexdigest()
 
 

@@ -30,6 +30,28 @@ def test_the_key_follows_points_config_and_extractor_version():
     assert empty not in (key, scan_key(np.zeros((0, 3), np.float32), EXTRACTOR, RansacPlanesConfig()))
 
 
+def test_the_key_follows_the_extractors_source_code(tmp_path, monkeypatch):
+    """An edit of the extractor's code without a new version number gets new keys (entries made by the
+    old code are never served)."""
+    import importlib
+    from dataclasses import replace
+
+    from featmap.pipeline import segment_store
+
+    def extractor_from(text: str, name: str):
+        (tmp_path / f"{name}.py").write_text(text)
+        monkeypatch.syspath_prepend(str(tmp_path))
+        module = importlib.import_module(name)
+        return replace(EXTRACTOR, extract=module.extract)
+
+    first = extractor_from("def extract(points, config):\n    return None\n", "extractor_a")
+    edited = extractor_from("def extract(points, config):\n    return None  # changed\n", "extractor_b")
+    same = extractor_from("def extract(points, config):\n    return None\n", "extractor_c")
+    keys = [scan_key(POINTS, e, RansacPlanesConfig()) for e in (first, edited, same)]
+    assert keys[0] != keys[1] and keys[0] == keys[2]
+    assert segment_store.extractor_source(EXTRACTOR) != segment_store.extractor_source(first)
+
+
 def test_entries_round_trip_and_bad_entries_are_discarded(tmp_path):
     store = SegmentStore(tmp_path / "cache")
     key = scan_key(POINTS, EXTRACTOR, RansacPlanesConfig())
