@@ -155,8 +155,8 @@ def _first_occurrences(scan: np.ndarray, segments: np.ndarray) -> np.ndarray:
     return first
 
 
-MAX_COORDINATE_M = 1e8
-"""Coordinates are metres of a local or projected frame (UTM northings stay below 1e7)."""
+MAX_COORDINATE_M = 1e12
+"""Coordinates are metres of a local or projected frame (UTM northings stay below 1e7; float64 keeps 0.1 mm here)."""
 
 
 def _check_extent(path: Path, segments: np.ndarray) -> None:
