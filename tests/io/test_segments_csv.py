@@ -33,6 +33,12 @@ def test_fused_round_trip(tmp_path):
     ("scan,x1,y1,x2,y2\n0,1,2,3\n", r"s.csv:2: expected 5 values, found 4"),
     ("", r"s.csv:1: empty file"),
     ("scan,x1,y1,x2,y2\n0.5,1,2,3,4\n", r"s.csv:2: column 'scan': not an integer"),
+    ("scan,x1,y1,x2,y2,x1\n0,1,2,3,4,9\n", r"s.csv:1: column 'x1' appears more than once in the header"),
+    ("scan,x1,y1,x2,y2, scan\n0,1,2,3,4,5\n", r"s.csv:1: column 'scan' appears more than once"),
+    ("scan,x1,y1,x2,y2\n0,1,2,3,4\n1e30,1,2,3,4\n", r"s.csv:3: column 'scan': 1e30 is outside the 64-bit integer range"),
+    ("scan,x1,y1,x2,y2\n-1e30,1,2,3,4\n", r"s.csv:2: column 'scan': -1e30 is outside the 64-bit integer range"),
+    ("scan,x1,y1,x2,y2\n9223372036854775808,1,2,3,4\n", r"s.csv:2: column 'scan': 9223372036854775808 is outside"),
+    ("scan,x1,y1,x2,y2\n0,1,2,3,4\n2.5,1,2,3,4\n", r"s.csv:3: column 'scan': not an integer: 2.5"),
 ])
 def test_malformed_segments_name_file_and_line(tmp_path, content, match):
     path = tmp_path / "s.csv"
@@ -61,21 +67,6 @@ def test_fused_csv_with_the_drives_of_a_merged_map_reads_back(tmp_path):
     assert lines[0] == "x1,y1,x2,y2,support,length_m,n_drives,drives" and lines[1].endswith(",2,a;b")
     back, support = read_fused_csv(tmp_path / "f.csv")
     assert np.array_equal(back, segs) and support.tolist() == [7, 2]
-
-
-@pytest.mark.parametrize("content,match", [
-    ("scan,x1,y1,x2,y2,x1\n0,1,2,3,4,9\n", r"s.csv:1: column 'x1' appears more than once in the header"),
-    ("scan,x1,y1,x2,y2, scan\n0,1,2,3,4,5\n", r"s.csv:1: column 'scan' appears more than once"),
-    ("scan,x1,y1,x2,y2\n0,1,2,3,4\n1e30,1,2,3,4\n", r"s.csv:3: column 'scan': 1e30 is outside the 64-bit integer range"),
-    ("scan,x1,y1,x2,y2\n-1e30,1,2,3,4\n", r"s.csv:2: column 'scan': -1e30 is outside the 64-bit integer range"),
-    ("scan,x1,y1,x2,y2\n9223372036854775808,1,2,3,4\n", r"s.csv:2: column 'scan': 9223372036854775808 is outside"),
-    ("scan,x1,y1,x2,y2\n0,1,2,3,4\n2.5,1,2,3,4\n", r"s.csv:3: column 'scan': not an integer: 2.5"),
-])
-def test_repeated_columns_and_bad_scan_ids_name_file_and_line(tmp_path, content, match):
-    path = tmp_path / "s.csv"
-    path.write_text(content)
-    with pytest.raises(InputFileError, match=match):
-        read_segments_csv(path)
 
 
 def test_fused_csv_with_a_repeated_column_or_fractional_support_fails(tmp_path):
