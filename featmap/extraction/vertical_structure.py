@@ -586,10 +586,11 @@ def wall_lean(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.ndarr
     A wall is vertical in the world; in the frame of a sensor that pitches and rolls with the road its
     returns drift sideways with height: the offset from the piece's line grows by ``n . g`` per metre
     (``n`` its normal). Every piece with >= ``min_points`` returns (``line_min_height_m`` up) spread over at least
-    0.5 m of height (standard deviation), 2 m long and straight once its lean is taken out (rms
-    <= 5 cm) gives one such equation; ``g`` is their least-squares solution weighted by each piece's
-    height spread, refitted twice without the pieces that disagree by more than ``LEAN_MAX_RESIDUAL``
-    (clutter), and damped where the pieces do not constrain it (walls of one direction only: the
+    0.5 m of height (standard deviation; 0.25 m of it not following the position along it), 2 m
+    long and straight once its lean is taken out (rms <= 5 cm) gives one such equation (its lean and
+    its line fitted together, :func:`lean_fit`: a grazing wall's slanted columns would turn a plain
+    line); ``g`` is their least-squares solution weighted by that independent spread, refitted twice
+    without the pieces that disagree by more than ``LEAN_MAX_RESIDUAL`` (clutter), and damped where the pieces do not constrain it (walls of one direction only: the
     lean along them moves nothing). At most ``MAX_TILT_DEG``. Zero when no piece qualifies.
     """
     point_piece = np.where(cells.point_cell >= 0, label[np.maximum(cells.point_cell, 0)], -1)
@@ -608,16 +609,17 @@ def wall_lean(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.ndarr
     offset = d[:, 0] * normal[piece, 0] + d[:, 1] * normal[piece, 1]
     along = d[:, 0] * -normal[piece, 1] + d[:, 1] * normal[piece, 0]
     szz = np.bincount(piece, d[:, 2] ** 2, n)
-    slope = np.bincount(piece, offset * d[:, 2], n) / np.maximum(szz, 1e-9)
-    rest = np.bincount(piece, (offset - slope[piece] * d[:, 2]) ** 2, n) / safe
+    turn, slope, unique = lean_fit(offset, along, d[:, 2], piece, n)
+    rest = np.bincount(piece, (offset - turn[piece] * along - slope[piece] * d[:, 2]) ** 2, n) / safe
     t_min = np.full(n, np.inf)
     t_max = np.full(n, -np.inf)
     np.minimum.at(t_min, piece, along)
     np.maximum.at(t_max, piece, along)
-    ok = (count >= min_points) & (szz / safe >= 0.25) & (t_max - t_min >= 2.0) & (rest <= 0.05 ** 2)
+    ok = (count >= min_points) & (szz / safe >= 0.25) & (unique / safe >= 0.25 ** 2) & (t_max - t_min >= 2.0)
+    ok &= rest <= 0.05 ** 2
     if not ok.any():
         return np.zeros(2)
-    nrm, s, w = normal[ok], slope[ok], szz[ok]
+    nrm, s, w = normal[ok], slope[ok], unique[ok]
     g = np.zeros(2)
     for _ in range(3):
         A = (nrm * w[:, None]).T @ nrm
@@ -967,6 +969,28 @@ def _untilted(offset: np.ndarray, z: np.ndarray, piece: np.ndarray, n: int, max_
     slope = np.bincount(piece, offset * dz, n) / np.maximum(np.bincount(piece, dz * dz, n), 1e-9)
     limit = np.tan(np.deg2rad(max_deg))
     return offset - np.clip(slope, -limit, limit)[piece] * dz
+
+
+def lean_fit(offset: np.ndarray, along: np.ndarray, dz: np.ndarray, piece: np.ndarray,
+             n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per piece, the turn ``b`` and lean ``c`` (both metres per metre) of ``offset ~ b along + c dz``.
+
+    ``offset``, ``along`` (K,): each point's distance from its piece's line through the piece's
+    centroid and position along it; ``dz`` (K,): its height above the piece's mean height; ``piece``
+    (K,) in ``[0, n)``. A wall leans in a tilted sensor's frame (its offset grows with height). Where
+    its returns also climb along it (a wall at grazing incidence, each column of returns slanting
+    across it), a line fitted in the top view turns to follow part of that lean, and the lean left
+    about that line is too small: fitting both together measures all of it. Only the part of the
+    height spread that does not follow the position along the line tells a lean from a turn, so
+    also returns that part's (n,) sum of squares, the weight of the lean (about 0 for one column).
+    """
+    saa = np.maximum(np.bincount(piece, along * along, n), 1e-9)
+    saz = np.bincount(piece, along * dz, n)
+    sao = np.bincount(piece, along * offset, n)
+    unique = np.maximum(np.bincount(piece, dz * dz, n) - saz * saz / saa, 0.0)
+    lean = (np.bincount(piece, dz * offset, n) - saz * sao / saa) / np.maximum(unique, 1e-9)
+    turn = (sao - lean * saz) / saa
+    return turn, lean, unique
 
 
 def _points_behind(cells: Cells, a: np.ndarray, b: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
