@@ -8,7 +8,9 @@ wall's points away. One pass, no randomness:
    the sensor's (250 m), not an accuracy crop: far walls are kept or dropped by their sampling.
 2. **Local ground**: the lowest return of each ``ground_cell_m`` cell (returns far below their
    neighbours' are outliers), lowered where a nearby cell's ground plus a slope of at most
-   ``ground_max_slope`` is lower (a wall's base hidden behind a fence takes the road's height).
+   ``ground_max_slope`` is lower (a wall's base hidden behind a fence takes the road's height), and
+   never higher than the road around the sensor plus that slope (a wall seen only over the building
+   in front of it).
    Heights are measured from this, so sloped roads, curbs and embankments need no global plane.
 3. **Levelling** (``level``): a vehicle on a sloped street pitches and rolls its sensor, and a wall,
    vertical in the world, leans in the sensor's frame (2 deg move a 15 m high wall's top by half a
@@ -82,7 +84,7 @@ class VerticalStructureConfig(Section):
     min_range_m: float = Field(2.5, ge=0, description="drop returns closer than this (vehicle body)")
     max_range_m: float = Field(250.0, gt=0, description="drop returns farther than this (the sensor's range; far walls are judged by their sampling)")
     ground_cell_m: float = Field(2.0, gt=0, description="cell of the local ground (lowest return per cell)")
-    ground_max_slope: float = Field(0.1, ge=0, description="the ground rises at most this much per metre away from a cell (rise/run)")
+    ground_max_slope: float = Field(0.1, ge=0, description="the ground rises at most this much per metre away from a cell and from the road around the sensor (rise/run)")
     ground_reach_m: float = Field(12.0, ge=0, description="... over at most this distance (fills cells whose ground is hidden)")
     ground_outlier_m: float = Field(1.0, gt=0, description="a cell whose lowest return is this far below its neighbours' median is an outlier")
     ground_margin_m: float = Field(0.25, ge=0, description="returns this close above the local ground are ground")
@@ -168,6 +170,10 @@ def validated_xyz(points) -> np.ndarray:
 
 # --- stage 2: local ground ------------------------------------------------------------------------------
 
+SENSOR_GROUND_RADIUS_M = 10.0
+"""The road around the sensor: ground cells within this distance of it (metres) bound the ground's rise."""
+
+
 def heights_above_local_ground(xyz: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
     """(N,) height of each (N, 3) point above the local ground under it (metres).
 
@@ -176,7 +182,9 @@ def heights_above_local_ground(xyz: np.ndarray, config: VerticalStructureConfig)
     road) takes that median instead. The ground may then rise at most ``ground_max_slope`` away from
     any cell, up to ``ground_reach_m``: a cell with no visible ground (a wall's base hidden behind a
     fence or a car, a car's own cell) takes the road next to it plus that slope, while a sloped road
-    keeps its own lowest returns.
+    keeps its own lowest returns. Nor may it rise more than that slope away from the median ground
+    of the cells within ``SENSOR_GROUND_RADIUS_M`` of the sensor: a wall seen only as a band over the
+    building in front of it, with no road within ``ground_reach_m``, would otherwise be its own ground.
     """
     from scipy import ndimage
 
@@ -199,6 +207,14 @@ def heights_above_local_ground(xyz: np.ndarray, config: VerticalStructureConfig)
     rise = config.ground_max_slope * cell * np.array([[np.sqrt(2), 1, np.sqrt(2)], [1, 0, 1], [np.sqrt(2), 1, np.sqrt(2)]])
     for _ in range(int(np.ceil(config.ground_reach_m / cell))):
         ground = ndimage.grey_erosion(ground, structure=-rise, mode="nearest")
+    # Nor does it rise faster than that from the road around the sensor: a wall seen only over the
+    # building in front of it, farther than ground_reach_m from any road, keeps its height.
+    cx = (np.arange(nx) + 0.5 + np.floor(xyz[:, 0] / cell).min()) * cell
+    cy = (np.arange(ny) + 0.5 + np.floor(xyz[:, 1] / cell).min()) * cell
+    r = np.hypot(cx[:, None], cy[None, :])
+    near = (r <= SENSOR_GROUND_RADIUS_M) & (ground < big)
+    if near.any():
+        ground = np.minimum(ground, float(np.median(ground[near])) + config.ground_max_slope * r)
     return xyz[:, 2] - ground.ravel()[flat]
 
 

@@ -197,6 +197,19 @@ def test_a_facade_seen_over_a_fence_up_to_the_top_beam_is_found():
     assert len(extract_vertical_structure(scan, VerticalStructureConfig(solid_min_span_m=0.8))) == 0
 
 
+@pytest.mark.parametrize("sensor, rear_height", [("vlp32", 7.5), ("vls128", 7.5), ("vlp16", 9.0)])
+def test_a_wall_seen_only_over_the_building_in_front_is_found(sensor, rear_height):
+    """A 3 m building 10-30 m ahead hides the road behind it; the rear building's facade at 36 m is seen
+    only above 6.3 m, as a band under its roof, with no ground within ground_reach_m. Its lowest return
+    must not become its ground (the band would be 0-1 m 'high', below every height test): the ground
+    rises at most ground_max_slope from the road around the sensor. One segment within 5 cm."""
+    scan = cast_scan([building(10, -15, 30, 15, 3.0), building(36, -25, 51, 25, rear_height)], sensor=sensor)
+    result = extract_vertical_structure(scan)
+    rear = [s for s in result.segments if on_line(s, [36, -25], [36, 25], 0.05)]
+    assert len(rear) == 1 and abs(rear[0][3] - rear[0][1]) > 45
+    assert any(on_line(s, [10, -15], [10, 15], 0.05) for s in result.segments)
+
+
 def test_a_tall_car_next_to_the_sensor_under_its_top_beam_is_no_wall():
     """Within ~8 m the HDL-64's top beam passes below 2 m: a 1.95 m van there stops it, but that is no
     evidence of a wall (reach_min_m)."""
