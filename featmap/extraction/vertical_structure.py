@@ -193,8 +193,9 @@ def heights_above_local_ground(xyz: np.ndarray, config: VerticalStructureConfig)
     cell = config.ground_cell_m
     ix = np.floor(xyz[:, 0] / cell).astype(np.int64)
     iy = np.floor(xyz[:, 1] / cell).astype(np.int64)
-    ix -= ix.min()
-    iy -= iy.min()
+    x0, y0 = ix.min(), iy.min()
+    ix -= x0
+    iy -= y0
     nx, ny = int(ix.max()) + 1, int(iy.max()) + 1
     flat = ix * ny + iy
     big = np.finfo(float).max / 4                           # an empty cell (finite, so sums stay finite)
@@ -209,9 +210,7 @@ def heights_above_local_ground(xyz: np.ndarray, config: VerticalStructureConfig)
         ground = ndimage.grey_erosion(ground, structure=-rise, mode="nearest")
     # Nor does it rise faster than that from the road around the sensor: a wall seen only over the
     # building in front of it, farther than ground_reach_m from any road, keeps its height.
-    cx = (np.arange(nx) + 0.5 + np.floor(xyz[:, 0] / cell).min()) * cell
-    cy = (np.arange(ny) + 0.5 + np.floor(xyz[:, 1] / cell).min()) * cell
-    r = np.hypot(cx[:, None], cy[None, :])
+    r = np.hypot((np.arange(nx) + 0.5 + x0)[:, None] * cell, (np.arange(ny) + 0.5 + y0)[None, :] * cell)
     near = (r <= SENSOR_GROUND_RADIUS_M) & (ground < big)
     if near.any():
         ground = np.minimum(ground, float(np.median(ground[near])) + config.ground_max_slope * r)
