@@ -201,6 +201,16 @@ def test_scans_as_tasks_of_their_own_give_the_same_run(first_batch, dask_client,
     same_run(tmp_path / "out" / "tiny_b", tmp / "out" / "tiny_b")
 
 
+def test_local_workers_keep_the_adaptive_malloc_thresholds(dask_client):
+    """Dask's nanny default MALLOC_TRIM_THRESHOLD_=65536 makes every large numpy array a fresh mmap (a
+    drive took a third longer in page faults); featmap's LocalCluster starts its workers without it."""
+    import os
+
+    seen = dask_client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_"))
+    assert len(seen) == 2 and set(seen.values()) == {None}
+    assert os.environ.get("MALLOC_TRIM_THRESHOLD_") is None          # nor is it left in the client's process
+
+
 def test_the_example_batch_names_two_builtin_drives_over_shared_streets():
     from featmap.simulation.worlds import load_world
 
