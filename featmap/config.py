@@ -122,8 +122,18 @@ def apply_overrides(data: dict[str, Any], overrides: Iterable[str], model: type[
                 child = {}
                 node[part] = child
             node = child
+        if isinstance(value, dict) and isinstance(node.get(path[-1]), dict):
+            value = _merged(node[path[-1]], value)     # a section given whole keeps the keys it does not name
         node[path[-1]] = value
     return data
+
+
+def _merged(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``update``'s keys set, nested sections merged key by key (neither is changed)."""
+    out = _deep_copy(base)
+    for key, value in update.items():
+        out[key] = _merged(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
 
 
 def _field_types(model: type[BaseModel], path: list[str]) -> tuple:

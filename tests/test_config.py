@@ -23,6 +23,15 @@ def test_precedence_defaults_yaml_set(tmp_path):
     assert cfg.fusion.proposed.gamma == FeatmapConfig().fusion.proposed.gamma
 
 
+def test_a_section_set_whole_keeps_the_yaml_keys_it_does_not_name(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("fusion:\n  refine:\n    max_offset_m: 0.2\n  proposed:\n    eta_m: 0.8\n")
+    cfg = load_config(path, ["fusion.refine={split_gap_m: 0.3}", "fusion={proposed: {delta_deg: 3}}"])
+    assert cfg.fusion.refine.split_gap_m == 0.3 and cfg.fusion.refine.max_offset_m == 0.2
+    assert cfg.fusion.proposed.delta_deg == 3 and cfg.fusion.proposed.eta_m == 0.8
+    assert load_config(path, ["fusion.refine={max_offset_m: 0.1}"]).fusion.refine.max_offset_m == 0.1
+
+
 def test_save_and_reload_round_trip(tmp_path):
     cfg = load_config(None, ["fusion.corners.mode=midpoint", "extraction.ransac_planes.seed=4"])
     save_config(cfg, tmp_path / "config.yaml")
