@@ -812,6 +812,8 @@ def run_batch(plan: BatchPlan, client, reporter: Reporter = NullReporter()) -> B
             reporter.warning(f"merged map: {_one_line(exc)}")
     elif plan.merge:
         reporter.warning("merged map: no drive finished, nothing to merge")
+    if merged is None and (plan.out / MERGED / "merged.json").exists():
+        reporter.warning(f"{plan.out / MERGED} is the merged map of an earlier batch, not of this one")
     records = [o.record for o in ordered]
     chains = [r.simulation_seconds + r.seconds for r in records] or [0.0]
     summary = BatchSummary(
@@ -826,6 +828,8 @@ def run_batch(plan: BatchPlan, client, reporter: Reporter = NullReporter()) -> B
     details = {o.record.name: o.detail for o in ordered if o.detail}
     if details:
         atomic_write_text(plan.out / "errors.txt", "".join(f"== {k}\n{v}\n" for k, v in details.items()))
+    else:
+        (plan.out / "errors.txt").unlink(missing_ok=True)      # an earlier batch's tracebacks are not this one's
     result = BatchResult(summary, ordered, merged)
     report_batch(result, reporter)
     return result

@@ -159,6 +159,22 @@ def test_a_rerun_resumes_skipping_finished_drives(first_batch, dask_client, tmp_
     assert [d.status for d in fifth.summary.drives] == ["skipped", "done", "skipped"]
 
 
+def test_outputs_of_an_earlier_batch_are_not_passed_off_as_this_ones(first_batch, dask_client, tmp_path):
+    """A batch that writes no merged map warns that OUT/merged is an earlier batch's; an earlier batch's
+    errors.txt goes when this one has no traceback to report."""
+    tmp, plan, _, _ = first_batch
+    out = tmp_path / "out"
+    shutil.copytree(tmp / "out", out)
+    (out / "errors.txt").write_text("== tiny\nTraceback (an earlier batch)\n")
+    batch_file = tmp_path / "b.yaml"
+    batch_file.write_text(plan.path.read_text() + "merge: false\n")
+    reporter = RecordingReporter()
+    result = run_batch(plan_batch(batch_file, out), dask_client, reporter)
+    assert result.merged is None and (out / "merged" / "merged.json").exists()
+    assert any("merged map of an earlier batch" in w for w in reporter.warnings)
+    assert not (out / "errors.txt").exists()
+
+
 def test_a_failing_drive_is_reported_and_the_others_finish(first_batch, dask_client, tiny_worlds, tmp_path):
     tmp = first_batch[0]
     # a KITTI raw copy of the simulated tiny drive with one scan cut short
