@@ -8,6 +8,7 @@ is unpacked. Unpacking writes into a hidden folder and moves the drive into plac
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import urllib.error
@@ -85,8 +86,9 @@ def verify_zip(path: Path) -> None:
         raise DownloadError(f"{path}: corrupt member {bad} (removed; download again)")
 
 
-def unpack(path: Path, data_dir: Path) -> None:
-    """Unzip into ``data_dir`` through a hidden staging folder; refuses paths that leave ``data_dir``."""
+def unpack(path: Path, data_dir: Path) -> dict[str, int]:
+    """Unzip into ``data_dir`` through a hidden staging folder; refuses paths that leave ``data_dir``.
+    Returns the size of every file unpacked, by its path relative to ``data_dir``."""
     data_dir = Path(data_dir)
     staging = data_dir / f".{path.stem}.unpacking"
     if staging.exists():
@@ -97,6 +99,7 @@ def unpack(path: Path, data_dir: Path) -> None:
             if not str(target).startswith(str(staging.resolve())):
                 raise DownloadError(f"{path}: member {name!r} would be written outside {data_dir}")
         zf.extractall(staging)
+    sizes = {}
     for top in staging.iterdir():
         for item in sorted(top.rglob("*")) if top.is_dir() else [top]:
             rel = item.relative_to(staging)
@@ -104,21 +107,46 @@ def unpack(path: Path, data_dir: Path) -> None:
             if item.is_dir():
                 continue
             dest.parent.mkdir(parents=True, exist_ok=True)
+            sizes[rel.as_posix()] = item.stat().st_size
             os.replace(item, dest)
     shutil.rmtree(staging)
+    return sizes
+
+
+UNPACKED = ".unpacked"
+"""``DATA_DIR/.unpacked/<zip name>.json``: the files a zip was unpacked into, with their sizes."""
+
+
+def is_unpacked(zip_name: str, data_dir: Path) -> bool:
+    """True when every file ``zip_name`` was unpacked into is still in ``data_dir`` with its size."""
+    record = Path(data_dir) / UNPACKED / f"{zip_name}.json"
+    try:
+        sizes = json.loads(record.read_text())["files"]
+        return bool(sizes) and all((Path(data_dir) / rel).stat().st_size == size for rel, size in sizes.items())
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return False
 
 
 def download_drive(drive: str, data_dir: str | Path, base_url: str = KITTI_RAW_BASE_URL,
                    progress_factory: Callable[[str], Progress] | None = None, keep_zips: bool = False) -> list[Path]:
-    """Fetch, verify and unpack a drive's ``_sync.zip`` and its date's calibration zip into ``data_dir``."""
+    """Fetch, verify and unpack a drive's ``_sync.zip`` and its date's calibration zip into ``data_dir``.
+
+    A zip whose files are all still unpacked (``is_unpacked``) is not fetched again. Returns the zips
+    fetched now."""
+    from featmap.io.atomic import atomic_write_text
+
     data_dir = Path(data_dir)
     zips = data_dir / "zips"
     out = []
     for url in drive_urls(drive, base_url):
         dest = zips / url.rsplit("/", 1)[-1]
+        if is_unpacked(dest.name, data_dir):
+            continue
         fetch(url, dest, progress_factory(dest.name) if progress_factory else None)
         verify_zip(dest)
-        unpack(dest, data_dir)
+        sizes = unpack(dest, data_dir)
+        (data_dir / UNPACKED).mkdir(exist_ok=True)
+        atomic_write_text(data_dir / UNPACKED / f"{dest.name}.json", json.dumps({"url": url, "files": sizes}))
         out.append(dest)
         if not keep_zips:
             dest.unlink()

@@ -72,6 +72,23 @@ def test_download_unpacks_a_loadable_drive(server, tmp_path):
     assert len(ds) == 40 and not (tmp_path / "kitti" / "zips").exists()
 
 
+def test_a_second_download_fetches_only_what_is_no_longer_unpacked(server, tmp_path):
+    url, site = server
+    download_drive(DRIVE, tmp_path / "kitti", base_url=url)
+    hidden = tmp_path / "hidden"
+    shutil.move(site, hidden)                          # the server now answers 404 to everything
+    assert download_drive(DRIVE, tmp_path / "kitti", base_url=url) == []
+    scan = next((tmp_path / "kitti").rglob("0000000007.bin"))
+    size = scan.stat().st_size
+    scan.unlink()                                      # a file of the drive's zip is gone: that zip is fetched again
+    with pytest.raises(DownloadError, match=f"{DRIVE}_sync.zip: HTTP 404"):
+        download_drive(DRIVE, tmp_path / "kitti", base_url=url)
+    shutil.move(hidden, site)
+    fetched = download_drive(DRIVE, tmp_path / "kitti", base_url=url)
+    assert [p.name for p in fetched] == [f"{DRIVE}_sync.zip"] and scan.stat().st_size == size
+    assert len(KittiRawDataset(tmp_path / "kitti", DRIVE)) == 40
+
+
 def test_download_resumes_from_a_partial_file(server, tmp_path):
     url, site = server
     src = site / DRIVE / f"{DRIVE}_sync.zip"
