@@ -600,13 +600,14 @@ def wall_lean(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.ndarr
 
     A wall is vertical in the world; in the frame of a sensor that pitches and rolls with the road its
     returns drift sideways with height: the offset from the piece's line grows by ``n . g`` per metre
-    (``n`` its normal). Every piece with >= ``min_points`` returns (``line_min_height_m`` up) spread over at least
-    0.5 m of height (standard deviation; 0.25 m of it not following the position along it), 2 m
+    (``n`` its normal). Every piece with >= ``min_points`` returns (``line_min_height_m`` up) spread over
+    at least 0.5 m of height (standard deviation; 0.25 m of it not following the position along it), 2 m
     long and straight once its lean is taken out (rms <= 5 cm) gives one such equation (its lean and
     its line fitted together, :func:`lean_fit`: a grazing wall's slanted columns would turn a plain
     line); ``g`` is their least-squares solution weighted by that independent spread, refitted twice
-    without the pieces that disagree by more than ``LEAN_MAX_RESIDUAL`` (clutter), and damped where the pieces do not constrain it (walls of one direction only: the
-    lean along them moves nothing). At most ``MAX_TILT_DEG``. Zero when no piece qualifies.
+    without the pieces that disagree by more than ``LEAN_MAX_RESIDUAL`` (clutter), and damped where
+    the pieces do not constrain it (walls of one direction only: the lean along them moves nothing).
+    At most ``MAX_TILT_DEG``. Zero when no piece qualifies.
     """
     point_piece = np.where(cells.point_cell >= 0, label[np.maximum(cells.point_cell, 0)], -1)
     member = np.flatnonzero((point_piece >= 0) & (height >= config.line_min_height_m))
