@@ -5,9 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from featmap.io.atomic import atomic_write_text
+from featmap.io.pose_csv import corrections_csv_text, trajectory_csv_text
 from featmap.io.segments_csv import write_fused_csv, write_segments_csv
 from featmap.outputs.base import OutputConfig, RunProducts
 
@@ -39,15 +38,6 @@ class FusedCsv:
         return names
 
 
-def trajectory_csv_text(frames: list[int], poses: np.ndarray) -> str:
-    """``frame,x,y,z,yaw`` of the sensor per frame (local frame, metres and radians)."""
-    lines = ["frame,x,y,z,yaw"]
-    for frame, T in zip(frames, poses):
-        yaw = np.arctan2(T[1, 0], T[0, 0])
-        lines.append(f"{frame},{T[0, 3]:.4f},{T[1, 3]:.4f},{T[2, 3]:.4f},{yaw:.6f}")
-    return "\n".join(lines) + "\n"
-
-
 class TrajectoryCsv:
     name = "trajectory.csv"
     needs_geo = False
@@ -74,15 +64,6 @@ class RefinedTrajectoryCsv:
             return []
         atomic_write_text(folder / "trajectory_refined.csv", trajectory_csv_text(products.frames, products.poses))
         return ["trajectory_refined.csv"]
-
-
-def corrections_csv_text(frames: list[int], corrections: np.ndarray) -> str:
-    """``frame,dx_m,dy_m,dyaw_deg`` per frame: the planar correction of each pose (world frame; the scan is
-    turned by ``dyaw`` about its own sensor position, then moved by ``dx, dy``)."""
-    lines = ["frame,dx_m,dy_m,dyaw_deg"]
-    for frame, (dx, dy, dyaw) in zip(frames, corrections):
-        lines.append(f"{frame},{dx:.4f},{dy:.4f},{np.rad2deg(dyaw):.5f}")
-    return "\n".join(lines) + "\n"
 
 
 class PoseCorrectionsCsv:

@@ -19,7 +19,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from featmap.errors import FeatmapError, InputFileError
+from featmap.errors import FeatmapError
 
 
 class RunFolderError(FeatmapError):
@@ -159,20 +159,10 @@ class RunData:
         return self.metrics.geo_frame.frame() if self.metrics.geo_frame is not None else None
 
 
-def _read_trajectory_xy(path: Path) -> np.ndarray:
-    """(F, 2) x, y of a run's ``trajectory.csv`` (``frame,x,y,z,yaw``)."""
-    try:
-        table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-    except (OSError, ValueError) as exc:
-        raise InputFileError(path, f"not a trajectory table frame,x,y,z,yaw ({exc})") from None
-    if len(table) and (table.shape[1] < 3 or not np.isfinite(table[:, 1:3]).all()):
-        raise InputFileError(path, "not a trajectory table frame,x,y,z,yaw (too few columns or non-finite values)")
-    return table[:, 1:3] if len(table) else np.zeros((0, 2))
-
-
 def load_run(run_dir: str | Path, config=None) -> RunData:
     """Read a run folder back (its config, or ``config`` when given, e.g. with ``--set`` overrides)."""
     from featmap.evaluation.references import load_simulator_truth, truth_from_footprints
+    from featmap.io.pose_csv import read_trajectory_xy
     from featmap.io.run_metrics import read_run_metrics
     from featmap.io.segments_csv import read_fused_csv, read_segments_csv
     from featmap.pipeline.config import load_config
@@ -185,7 +175,7 @@ def load_run(run_dir: str | Path, config=None) -> RunData:
     segments = read_segments_csv(run_dir / "segments.csv")
     fused = {name: read_fused_csv(run_dir / f"fused_{name}.csv") for name in metrics.methods}
     traj_path = run_dir / "trajectory.csv"
-    trajectory = _read_trajectory_xy(traj_path) if traj_path.exists() else np.zeros((0, 2))
+    trajectory = read_trajectory_xy(traj_path) if traj_path.exists() else np.zeros((0, 2))
     frame = metrics.geo_frame.frame() if metrics.geo_frame is not None else None
     truth = None
     truth_dir = metrics.reference_path("truth", run_dir)

@@ -1,0 +1,67 @@
+"""``trajectory.csv`` (and ``trajectory_refined.csv``) and ``pose_corrections.csv`` of a run folder.
+
+``trajectory.csv``: header ``frame,x,y,z,yaw``, the sensor's pose per frame (local frame, metres, radians).
+``pose_corrections.csv``: header ``frame,dx_m,dy_m,dyaw_deg``, the planar correction pose refinement applied
+to each frame's pose (world frame: the scan is turned by ``dyaw`` about its own sensor position, then moved
+by ``dx, dy``; see :func:`featmap.refinement.base.apply_corrections`).
+Readers raise a one-line :class:`InputFileError` naming the file.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from featmap.errors import InputFileError
+
+
+def trajectory_csv_text(frames: list[int], poses: np.ndarray) -> str:
+    """``frame,x,y,z,yaw`` of the sensor per frame, from (F, 4, 4) ``T_world_sensor``."""
+    lines = ["frame,x,y,z,yaw"]
+    for frame, T in zip(frames, poses):
+        yaw = np.arctan2(T[1, 0], T[0, 0])
+        lines.append(f"{frame},{T[0, 3]:.4f},{T[1, 3]:.4f},{T[2, 3]:.4f},{yaw:.6f}")
+    return "\n".join(lines) + "\n"
+
+
+def corrections_csv_text(frames: list[int], corrections: np.ndarray) -> str:
+    """``frame,dx_m,dy_m,dyaw_deg`` per frame from (F, 3) corrections ``dx, dy`` (metres), ``dyaw`` (radians)."""
+    lines = ["frame,dx_m,dy_m,dyaw_deg"]
+    for frame, (dx, dy, dyaw) in zip(frames, corrections):
+        lines.append(f"{frame},{dx:.4f},{dy:.4f},{np.rad2deg(dyaw):.5f}")
+    return "\n".join(lines) + "\n"
+
+
+def _read_table(path: Path, kind: str, header: str) -> np.ndarray:
+    """(R, C) the finite numbers of a CSV table (a ``kind`` table) whose first line is ``header``."""
+    what = f"not a {kind} table {header}"
+    try:
+        with open(path, encoding="utf-8") as f:
+            first = f.readline().strip()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFileError(path, f"{what} ({exc})") from None
+    if first != header:
+        raise InputFileError(path, f"{what} (its header is {first[:60]!r})", 1)
+    columns = header.count(",") + 1
+    try:
+        table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    except ValueError as exc:                   # (numpy's advice on `usecols` is not the user's to follow)
+        raise InputFileError(path, f"{what} ({str(exc).split(';')[0]})") from None
+    if len(table) and (table.shape[1] != columns or not np.isfinite(table).all()):
+        raise InputFileError(path, f"{what} (rows of {table.shape[1]} values, or non-finite values)")
+    return table.reshape(-1, columns)
+
+
+def read_trajectory_xy(path: str | Path) -> np.ndarray:
+    """(F, 2) x, y of a run's ``trajectory.csv``."""
+    return _read_table(Path(path), "trajectory", "frame,x,y,z,yaw")[:, 1:3]
+
+
+def read_corrections_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """A run's ``pose_corrections.csv``: frames (F,) and corrections (F, 3) ``dx, dy`` (metres), ``dyaw`` (radians)."""
+    table = _read_table(Path(path), "pose-corrections", "frame,dx_m,dy_m,dyaw_deg")
+    frames = table[:, 0]
+    if not np.array_equal(frames, np.round(frames)):
+        raise InputFileError(path, "frame numbers that are not whole numbers")
+    return frames.astype(np.int64), np.column_stack([table[:, 1:3], np.deg2rad(table[:, 3])])
