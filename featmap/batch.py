@@ -58,7 +58,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from featmap import __version__
 from featmap.config import read_yaml_mapping
 from featmap.datasets import SourceSpec
-from featmap.errors import ConfigError, FeatmapError
+from featmap.errors import ConfigError, FeatmapError, InputFileError
 from featmap.io.batch_records import (BatchSummary, DriveKey, DriveRecord, MergedDrive, MergedRecord,
                                       read_drive_key, write_batch_summary, write_drive_key, write_merged_record)
 from featmap.pipeline.config import load_config
@@ -182,6 +182,7 @@ class BatchPlan:
     merge: bool
     scheduler: Optional[str]
     workers: Optional[int]
+    cache_dir: str = "data/cache"
 
 
 def _strip_name(name: str) -> str:
@@ -309,7 +310,7 @@ def plan_batch(path: str | Path, out: str | Path | None = None, config: str | Pa
     if spec.scan_tasks:
         drives = [replace(d, scan_tasks=True) for d in drives]
     return BatchPlan(path.absolute(), out, drives, methods, merge_config.model_dump(mode="json"), spec.merge,
-                     scheduler or spec.scheduler, spec.workers)
+                     scheduler or spec.scheduler, spec.workers, cache_dir)
 
 
 # --- the tasks (they run on the workers) --------------------------------------------------------------------
@@ -533,6 +534,7 @@ def merged_inputs(run_dirs: list[tuple[str, str | Path]]) -> MergedInputs:
     ranges): they share its frame. Others are left out (listed in ``left_out``).
     """
     from featmap.geo import reproject, reproject_segments
+    from featmap.io.pose_csv import read_trajectory_xy
     from featmap.io.run_metrics import GeoRecord, read_run_metrics
     from featmap.io.segments_csv import SegmentTable, read_segments_csv
 
@@ -573,7 +575,7 @@ def merged_inputs(run_dirs: list[tuple[str, str | Path]]) -> MergedInputs:
                                   frames_processed=m.source.frames_processed))
         traj_path = run_dir / "trajectory.csv"
         if traj_path.exists():
-            xy = np.loadtxt(traj_path, delimiter=",", skiprows=1, ndmin=2)[:, 1:3]
+            xy = read_trajectory_xy(traj_path)
             trajectories[name] = reproject(xy, src, frame) if frame is not None else xy
         top = max([int(table.scan.max()) if len(table) else -1, *m.source.frames_processed, -1])
         offset += top + 1
@@ -585,17 +587,86 @@ def merged_inputs(run_dirs: list[tuple[str, str | Path]]) -> MergedInputs:
     return MergedInputs(table, drives, [d.name for d in drives], frame, left_out, trajectories)
 
 
-def merged_reference(inputs: MergedInputs):
-    """(evaluator, Reference) of the drives' simulator truths united in the merged frame, or None when some
-    drive has none (then the merged map is not scored)."""
-    from featmap.evaluation import Reference
+def merged_reference(inputs: MergedInputs, evaluation=None, cache_dir: str | Path | None = None):
+    """(evaluator, Reference) the merged map is scored against, or None.
+
+    The drives' simulator truths united in the merged frame when every drive has one; otherwise, with the
+    ``evaluation:`` section given, what a run of its own would be scored against: building footprints
+    (``evaluation.footprints``, when the merged frame has a geo origin), else the truth-free map metric
+    against every drive's scan points (``merged_points``, from the segment cache in ``cache_dir``).
+
+    Raises:
+        FeatmapError: a drive's scans cannot be read again (moved, changed) for the map metric.
+    """
+    from featmap.evaluation import EvaluationContext, Reference
     from featmap.evaluation.plugins import SimulatorTruth
     from featmap.evaluation.references import load_simulator_truth, merge_truths
+    from featmap.pipeline.run import primary_reference
 
-    if not inputs.drives or any(d.truth is None for d in inputs.drives):
+    if not inputs.drives:
         return None
-    truths = [load_simulator_truth(d.truth, inputs.frame, d.frames_processed) for d in inputs.drives]
-    return SimulatorTruth(), Reference(merge_truths(truths), ";".join(d.truth for d in inputs.drives))
+    if all(d.truth is not None for d in inputs.drives):
+        truths = [load_simulator_truth(d.truth, inputs.frame, d.frames_processed) for d in inputs.drives]
+        return SimulatorTruth(), Reference(merge_truths(truths), ";".join(d.truth for d in inputs.drives))
+    if evaluation is None:
+        return None
+    context = EvaluationContext(None, None, inputs.frame, evaluation)
+    found = primary_reference(context)                  # footprints, when the config names them
+    if found is not None or cache_dir is None:
+        return found
+    points = merged_points(inputs, cache_dir)
+    if points is None:
+        return None
+    return primary_reference(replace(context, points=points, raw_segments=inputs.table.segments))
+
+
+def drive_points(run_dir: str | Path, cache_dir: str | Path) -> np.ndarray | None:
+    """(P, 2) the scan points of a batch drive (its extractor's structure points) in its run's local
+    frame, placed with the poses the run fused with (the source's, moved by ``pose_corrections.csv``), or
+    None when its extractor gives none. The scans are read again and their segments taken from the
+    segment cache (extracted again where the cache lacks them).
+
+    Raises:
+        FeatmapError: the drive's ``batch.json``, config or pose corrections are unreadable, or its
+            source can no longer be opened as it was.
+    """
+    from featmap.datasets import open_source
+    from featmap.io.pose_csv import read_corrections_csv
+    from featmap.pipeline import SegmentStore
+    from featmap.pipeline.extract import extract_source
+    from featmap.refinement.base import apply_corrections
+
+    run_dir = Path(run_dir)
+    source = read_drive_key(run_dir / KEY_FILE).source
+    # The key holds where the scans were read (a simulated drive: the KITTI raw drive it was written as).
+    kind = "kitti_raw" if source["kind"] == "simulated" else source["kind"]
+    spec = SourceSpec(kind, source["location"], source.get("frames"), bool(source.get("skip_bad_scans")))
+    extraction = extract_source(open_source(spec), load_config(run_dir / "config.yaml").extraction,
+                                SegmentStore(cache_dir), skip_bad_scans=spec.skip_bad_scans)
+    poses = extraction.poses
+    corrections_path = run_dir / "pose_corrections.csv"
+    if corrections_path.exists():
+        frames, corrections = read_corrections_csv(corrections_path)
+        if list(frames) != list(extraction.frames):
+            raise InputFileError(corrections_path, f"its frames are not the {len(extraction.frames)} frames of "
+                                 f"{spec.location} the run used (the source changed since?)")
+        poses = apply_corrections(poses, corrections)
+    return extraction.world_points(poses)
+
+
+def merged_points(inputs: MergedInputs, cache_dir: str | Path) -> np.ndarray | None:
+    """(P, 2) every drive's scan points (``drive_points``) in the merged frame, or None when a drive has none."""
+    from featmap.geo import reproject
+
+    parts = []
+    for d in inputs.drives:
+        points = drive_points(d.run_dir, cache_dir)
+        if points is None:
+            return None
+        if inputs.frame is not None and d.geo_frame is not None:
+            points = reproject(points, d.geo_frame.frame(), inputs.frame)
+        parts.append(points)
+    return np.concatenate(parts) if parts else None
 
 
 def drive_provenance(labels: np.ndarray, drive: np.ndarray, n_features: int) -> list[list[int]]:
@@ -608,13 +679,16 @@ def drive_provenance(labels: np.ndarray, drive: np.ndarray, n_features: int) -> 
     return out
 
 
-def merge_task(run_dirs: list[tuple[str, str]], out: str, methods: tuple[str, ...], config: dict) -> MergedRecord:
-    """Dask task (or a plain call): fuse the drives' segments together into ``out`` (a run folder).
+def merge_task(run_dirs: list[tuple[str, str]], out: str, methods: tuple[str, ...], config: dict,
+               cache_dir: str | None = None) -> MergedRecord:
+    """Dask task (or a plain call): fuse the drives' segments together into ``out`` (a run folder) and
+    score it (``merged_reference``; the map metric reads the drives' scans again, their segments from
+    the segment cache ``cache_dir``).
 
     Writes ``segments.csv`` (merged frame, unique scan ids, ``drive`` column), ``fused_<method>.csv``
     (with ``n_drives`` and ``drives``: who saw each feature), ``fused_<method>.geojson`` (the same as
     properties), ``map.kml`` and ``map.html`` (a layer per method and per drive's trajectory),
-    ``config.yaml`` and ``merged.json`` (frame, drives, counts, scores against the drives' united truth).
+    ``config.yaml`` and ``merged.json`` (frame, drives, counts, scores and what they are against).
     """
     from featmap.geo import reproject_segments
     from featmap.io.atomic import atomic_write_text
@@ -629,7 +703,11 @@ def merge_task(run_dirs: list[tuple[str, str]], out: str, methods: tuple[str, ..
     inputs = merged_inputs(run_dirs)
     table = inputs.table
     runs = fuse_methods(table, list(methods), cfg.fusion)
-    reference = merged_reference(inputs)
+    unscored = None
+    try:
+        reference = merged_reference(inputs, cfg.evaluation, cache_dir)
+    except FeatmapError as exc:                  # the map is still written, without scores
+        reference, unscored = None, f"not scored: {_one_line(exc)}"
     drive_index = table.extra["drive"].astype(np.int64)
     scores, drive_scores, counts, multi = {}, {}, {}, {}
     provenance = {}
@@ -660,6 +738,7 @@ def merge_task(run_dirs: list[tuple[str, str]], out: str, methods: tuple[str, ..
                               geo_frame=GeoRecord(**inputs.frame.to_dict()) if inputs.frame is not None else None,
                               drives=inputs.drives, left_out=inputs.left_out, segments=len(table), counts=counts,
                               multi_drive=multi, reference=reference[1].path if reference is not None else None,
+                              evaluator=reference[0].name if reference is not None else None, unscored=unscored,
                               scores=_plain(scores), drive_scores=_plain(drive_scores),
                               seconds=round(time.perf_counter() - start, 3))
         write_merged_record(folder.tmp / "merged.json", record)
@@ -804,7 +883,7 @@ def run_batch(plan: BatchPlan, client, reporter: Reporter = NullReporter()) -> B
     usable = [(o.record.name, o.record.run_dir) for o in ordered if o.record.status != "failed"]
     if plan.merge and usable:
         merge_future = client.submit(merge_task, usable, str(plan.out / MERGED), plan.methods, plan.merge_config,
-                                     pure=False, key=f"merge-{uuid.uuid4().hex[:6]}")
+                                     plan.cache_dir, pure=False, key=f"merge-{uuid.uuid4().hex[:6]}")
         try:
             merged = merge_future.result()
             merge_seconds = merged.seconds
@@ -873,6 +952,8 @@ def report_batch(result: BatchResult, reporter: Reporter) -> None:
     if m is not None:
         mcols = ["method", "features", "seen by 2+ drives"]
         keys = [("count_ratio", 2), ("precision", 3), ("recall", 3), ("redundancy", 2)]
+        if m.evaluator == "map":                    # the truth-free metric: no walls to count features per
+            keys = [("compression", 1), ("precision", 3), ("recall", 3), ("redundancy", 3)]
         if m.scores:
             mcols += [k for k, _ in keys] + ["best single drive recall"]
         mrows = []
@@ -883,10 +964,13 @@ def report_batch(result: BatchResult, reporter: Reporter) -> None:
                 best = max((d.get("recall") or 0.0 for d in m.drive_scores.get(name, {}).values()), default=None)
                 row += [_fmt(sc.get(k), nd) for k, nd in keys] + [_fmt(best, 3)]
             mrows.append(row)
-        against = " (scored against the drives' truths, united)" if m.scores else ""
+        against = {"truth": " (scored against the drives' truths, united)", "footprints": f" (scored against {m.reference})",
+                   "map": " (scored against the drives' scan points)"}.get(m.evaluator or "truth", "") if m.scores else ""
         reporter.table(f"merged map: {len(m.drives)} drives, {m.segments} segments{against}", mcols, mrows)
         for name, why in m.left_out.items():
             reporter.warning(f"merged map: left out {name}: {why}")
+        if m.unscored:
+            reporter.warning(f"merged map: {m.unscored}")
     written = sum(d.status == "done" for d in s.drives)
     kept = sum(d.status == "skipped" for d in s.drives)
     failed = sum(d.status == "failed" for d in s.drives)

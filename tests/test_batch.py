@@ -348,3 +348,48 @@ def test_drives_without_a_geo_origin_merge_only_within_one_log(first_batch, dask
     assert [d.name for d in result.merged.drives] == ["tiny"]
     assert set(result.merged.left_out) == {"room_a", "room_b"}
     assert "no geo origin" in result.merged.left_out["room_a"]
+
+
+def test_a_merged_map_without_truth_is_scored_against_the_drives_scan_points(first_batch, dask_client, tiny_worlds,
+                                                                              tmp_path):
+    """Two halves of an indoor log (no simulator truth): the merged map gets the truth-free metric against
+    both halves' scan points, the same points a run over the whole log scores against; a drive whose scans
+    are gone leaves the merged map written but unscored, saying why."""
+    from featmap.batch import merge_task
+    from featmap.io.run_metrics import read_run_metrics
+    from tests.conftest import write_room_log
+
+    tmp = first_batch[0]
+    log = write_room_log(tmp_path / "room.log", np.random.default_rng(1))
+    halves = (f"  - dataset: carmen\n    location: {log}\n    frames: '0:30'\n    name: room_a\n"
+              f"  - dataset: carmen\n    location: {log}\n    frames: '30:60'\n    name: room_b\n")
+    path = write_batch(tmp_path / "b.yaml", tiny_worlds, tmp / "data" / "sim", tmp / "cache", halves)
+    reporter = RecordingReporter()
+    merged = run_batch(plan_batch(path, tmp_path / "out"), dask_client, reporter).merged
+    assert merged.evaluator == "map" and merged.reference == "scan points" and merged.unscored is None
+    whole = runner.invoke(app, ["run", "--carmen", str(log), "--out", str(tmp_path / "whole"), "--method", "proposed",
+                                "--cache-dir", str(tmp / "cache")])
+    assert whole.exit_code == 0, whole.output
+    alone = read_run_metrics(tmp_path / "whole" / "metrics.json").primary_scores("proposed")
+    score = merged.scores["proposed"]
+    assert score["points"] == alone["points"] and score["raw_count"] == alone["raw_count"]   # every scan, once
+    assert score["precision"] >= 0.97 and score["recall"] >= 0.95 and score["redundancy"] <= 0.05
+    halves_recall = [merged.drive_scores["proposed"][d]["recall"] for d in ("room_a", "room_b")]
+    assert score["recall"] >= max(halves_recall) + 0.05    # the two halves' views together
+    assert any("scan points" in str(t) for t in reporter.tables)
+    # a sweep of the batch starts from the config the merged map was fused with and scores as it was scored
+    from featmap.sweep import run_sweep_file
+
+    spec = tmp_path / "s.yaml"
+    spec.write_text(f"batch: {tmp_path / 'out'}\nmethods: [proposed]\ngrid:\n  fusion.proposed.eta_m: [0.2]\n")
+    rows, _ = run_sweep_file(spec, tmp_path / "sweep", cache_dir=str(tmp / "cache"))
+    assert rows[0]["count"] == merged.counts["proposed"]
+    assert rows[0]["recall"] == pytest.approx(score["recall"]) and rows[0]["precision"] == pytest.approx(score["precision"])
+
+    log.rename(tmp_path / "moved.log")                     # the scans are gone: written, not scored
+    record = merge_task([("room_a", str(tmp_path / "out" / "room_a")), ("room_b", str(tmp_path / "out" / "room_b"))],
+                        str(tmp_path / "merged_again"), ("proposed",), plan_batch(path).merge_config,
+                        str(tmp / "cache"))
+    assert record.scores == {} and record.counts["proposed"] == merged.counts["proposed"]
+    assert record.unscored.startswith("not scored: ") and "room.log" in record.unscored
+    assert (tmp_path / "merged_again" / "fused_proposed.csv").exists()

@@ -92,7 +92,10 @@ class MergedRecord(_Model):
     segments: int
     counts: dict[str, int] = Field(default_factory=dict)
     multi_drive: dict[str, int] = Field(default_factory=dict, description="method -> features seen by 2+ drives")
-    reference: Optional[str] = Field(None, description="what the scores are against (the drives' truths, united)")
+    reference: Optional[str] = Field(None, description="what the scores are against: the drives' truths (united), "
+                                                       "a footprints file, or the drives' scan points")
+    evaluator: Optional[str] = Field(None, description="the kind of reference: truth, footprints or map (truth-free)")
+    unscored: Optional[str] = Field(None, description="why a map that could have been scored was not")
     scores: dict[str, dict[str, Score]] = Field(default_factory=dict, description="method -> merged map's scores")
     drive_scores: dict[str, dict[str, dict[str, Score]]] = Field(
         default_factory=dict, description="method -> drive -> that drive's own map scored against the same reference")
