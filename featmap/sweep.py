@@ -2,7 +2,8 @@
 
 A sweep file::
 
-    base: configs/default.yaml            # optional (the command's --config/--set apply on top of it)
+    base: configs/default.yaml            # optional (a file or preset; --config replaces it, --set applies on
+                                          # top); without one, the config the input was made with (see made_with)
     input: runs/residential/segments.csv  # a run's segments (its metrics.json gives the reference), or
     drive: default                        # a source: default (the simulated residential drive),
     #   drive: 2011_09_30_drive_0018 (+ data_dir, frames), or dataset: NAME + location: PATH, or
@@ -389,7 +390,7 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
         digest = _digest(Path(spec.input).read_bytes(), _reference_content(truth_path))
         return SweepInputs(table.segments, table.scan, reference, digest)
     if spec.batch is not None:
-        return _batch_inputs(Path(spec.batch))
+        return _batch_inputs(Path(spec.batch), base.evaluation, cache_dir)
     if spec.dataset is not None:
         source_spec = SourceSpec(spec.dataset, spec.location, spec.frames)
     elif spec.drive == "default":
@@ -408,17 +409,32 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
     return SweepInputs(table.segments, table.scan, reference, digest)
 
 
-def _batch_inputs(folder: Path) -> SweepInputs:
-    """A finished batch's merged segments, scored against its drives' truths united (when all have one)."""
+def _batch_inputs(folder: Path, evaluation, cache_dir) -> SweepInputs:
+    """A finished batch's merged segments, scored as its merged map is (``featmap.batch.merged_reference``:
+    the drives' truths united, footprints, or the drives' scan points)."""
     from featmap.batch import MERGED, merged_inputs, merged_reference
     from featmap.io.batch_records import read_merged_record
 
     record = read_merged_record(folder / MERGED / "merged.json")
     inputs = merged_inputs([(d.name, d.run_dir) for d in record.drives])
-    reference = merged_reference(inputs)
+    reference = merged_reference(inputs, evaluation, cache_dir)
     table = inputs.table
     digest = _digest(table.segments.tobytes(), table.scan.tobytes(), _reference_content(reference[1].path if reference else None))
     return SweepInputs(table.segments, table.scan, reference, digest)
+
+
+def made_with(spec: SweepSpec) -> str | None:
+    """The config a sweep that names no base varies: the one its input was made with (a batch's merged map's
+    ``config.yaml``, the ``config.yaml`` of the run folder that holds its segments), or for a source the
+    preset of its format (``indoor_2d`` for CARMEN logs, as ``featmap run`` picks); None = the defaults."""
+    from featmap.datasets import DATASETS
+
+    if spec.batch is not None or spec.input is not None:
+        from featmap.batch import MERGED
+
+        path = Path(spec.batch) / MERGED / "config.yaml" if spec.batch is not None else Path(spec.input).parent / "config.yaml"
+        return str(path) if path.is_file() else None
+    return DATASETS[spec.dataset].preset if spec.dataset in DATASETS else None
 
 
 def run_sweep_file(spec_path: str | Path, out: str | Path, executor: Executor = SerialExecutor(),
@@ -435,10 +451,21 @@ def run_sweep_file(spec_path: str | Path, out: str | Path, executor: Executor = 
     from featmap.io.atomic import atomic_write_text
     from featmap.plotting.sweep_plots import plot_sweep
 
+    from featmap.pipeline.config import resolve_config_path
+
     spec_path = Path(spec_path)
     spec = load_sweep(spec_path)
     base_path = config_path or spec.base
-    base = read_yaml_mapping(base_path) if base_path else {}
+    if base_path is None:
+        base_path = made_with(spec)
+        if base_path is not None:
+            reporter.info(f"base config: {base_path}, the one the input was made with ('base:' or --config to change)")
+    try:
+        base = read_yaml_mapping(resolve_config_path(base_path)) if base_path else {}
+    except ConfigError as exc:
+        if config_path is not None or spec.base is None:
+            raise
+        raise ConfigError(f"{spec_path}: base: {exc}".replace("--config ", "")) from None
     if overrides:
         base = apply_overrides(base, overrides, FeatmapConfig)
     base_config = config_from_dict(base, str(base_path or "defaults"))

@@ -150,18 +150,15 @@ def test_a_huge_grid_is_refused_before_expanding_or_sampled(tmp_path):
 
 def test_a_sweep_of_a_2d_log_scores_the_maps_a_run_makes(tmp_path):
     """A source without ground truth is scored with the truth-free metric, on the poses a run would use;
-    the shared ``fusion.refine.*`` keys vary every method; a row equals ``featmap run`` with its settings."""
-    from pathlib import Path
-
+    the shared ``fusion.refine.*`` keys vary every method; a row equals ``featmap run`` with its settings
+    (without a ``base:``, the sweep starts from the preset a run of that format uses: indoor_2d)."""
     import numpy as np
 
     from featmap.io.run_metrics import read_run_metrics
     from tests.conftest import write_room_log
 
-    preset = Path(__file__).resolve().parents[1] / "configs" / "indoor_2d.yaml"
     log = write_room_log(tmp_path / "room.log", np.random.default_rng(0))
     path = _write(tmp_path, f"""
-base: {preset}
 dataset: carmen
 location: {log}
 methods: [proposed, density]
@@ -172,6 +169,7 @@ grid:
     out = tmp_path / "out"
     res = runner.invoke(app, ["sweep", str(path), "--out", str(out), "--workers", "1", "--cache-dir", str(tmp_path / "c")])
     assert res.exit_code == 0, res.output
+    assert "base config: indoor_2d" in res.output
     rows = list(csv.DictReader(open(out / "sweep.csv")))
     assert len(rows) == 2 * 2 + 2                       # density varies with the shared key too
     assert {"precision", "recall", "redundancy", "compression", "f1", "quality"} <= set(rows[0])
@@ -201,6 +199,17 @@ grid:
     assert res.exit_code == 0, res.output
     assert "nothing to score against" in " ".join(res.output.split())
     assert "precision" not in (tmp_path / "out2" / "sweep.csv").read_text().splitlines()[0]
+    # ... re-fused as that run fused them (its config.yaml), so a row at the run's settings gives its count
+    assert f"base config: {tmp_path / 'run' / 'config.yaml'}" in " ".join(res.output.split())
+    counts = {r["fusion.proposed.eta_m"]: int(r["count"]) for r in csv.DictReader(open(tmp_path / "out2" / "sweep.csv"))}
+    assert counts["0.5"] == metrics.methods["proposed"].count
+    # a preset name is a base too, like everywhere else --config is taken
+    path3 = tmp_path / "paper.yaml"
+    path3.write_text(f"dataset: carmen\nlocation: {log}\nmethods: [proposed]\ngrid:\n  fusion.proposed.eta_m: [0.2, 0.5]\n")
+    res = runner.invoke(app, ["sweep", str(path3), "--out", str(tmp_path / "out3"), "--workers", "1", "--config", "paper",
+                              "--cache-dir", str(tmp_path / "c")])
+    assert res.exit_code == 0, res.output
+    assert "base config" not in res.output and "mode: midpoint" in (tmp_path / "out3" / "best.yaml").read_text()
 
 
 def test_an_edited_truth_never_serves_the_old_rows(tmp_path, case1_run):
