@@ -51,7 +51,7 @@ from featmap.config import apply_overrides, closest_key, leaf_keys, read_yaml_ma
 from featmap.errors import ConfigError, FeatmapError
 from featmap.evaluation import Evaluator, Reference
 from featmap.fusion import FUSION_METHODS, fuse
-from featmap.pipeline.config import FeatmapConfig, config_from_dict
+from featmap.pipeline.config import FeatmapConfig, config_from_dict, resolve_config_path
 from featmap.pipeline.executor import Executor, SerialExecutor
 from featmap.reporting import NullReporter, Reporter, track
 
@@ -451,8 +451,6 @@ def run_sweep_file(spec_path: str | Path, out: str | Path, executor: Executor = 
     from featmap.io.atomic import atomic_write_text
     from featmap.plotting.sweep_plots import plot_sweep
 
-    from featmap.pipeline.config import resolve_config_path
-
     spec_path = Path(spec_path)
     spec = load_sweep(spec_path)
     base_path = config_path or spec.base
@@ -460,12 +458,8 @@ def run_sweep_file(spec_path: str | Path, out: str | Path, executor: Executor = 
         base_path = made_with(spec)
         if base_path is not None:
             reporter.info(f"base config: {base_path}, the one the input was made with ('base:' or --config to change)")
-    try:
-        base = read_yaml_mapping(resolve_config_path(base_path)) if base_path else {}
-    except ConfigError as exc:
-        if config_path is not None or spec.base is None:
-            raise
-        raise ConfigError(f"{spec_path}: base: {exc}".replace("--config ", "")) from None
+    flag = "--config" if config_path is not None or spec.base is None else f"{spec_path}: base:"
+    base = read_yaml_mapping(resolve_config_path(base_path, flag)) if base_path else {}
     if overrides:
         base = apply_overrides(base, overrides, FeatmapConfig)
     base_config = config_from_dict(base, str(base_path or "defaults"))

@@ -43,8 +43,9 @@ def preset_names() -> list[str]:
     return sorted(p.stem for p in PRESETS_DIR.glob("*.yaml") if not p.stem.startswith("batch"))
 
 
-def resolve_config_path(path: str | Path) -> Path:
-    """A config file's path: ``path`` itself when it exists, else the preset of that name in ``configs/``."""
+def resolve_config_path(path: str | Path, flag: str = "--config") -> Path:
+    """A config file's path: ``path`` itself when it exists, else the preset of that name in ``configs/``
+    (``flag``: where the name came from, for the error)."""
     path = Path(path)
     if path.exists() or path.suffix in (".yaml", ".yml") or len(path.parts) > 1:
         return path
@@ -52,7 +53,7 @@ def resolve_config_path(path: str | Path) -> Path:
     if preset.is_file():
         return preset
     names = preset_names()
-    raise ConfigError(f"--config {path}: no such file, nor a preset" + (f" ({', '.join(names)})" if names else ""))
+    raise ConfigError(f"{flag} {path}: no such file, nor a preset" + (f" ({', '.join(names)})" if names else ""))
 
 
 def load_config(path: str | Path | None = None, overrides: Iterable[str] = ()) -> FeatmapConfig:
