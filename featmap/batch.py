@@ -632,6 +632,7 @@ def drive_points(run_dir: str | Path, cache_dir: str | Path) -> np.ndarray | Non
     """
     from featmap.datasets import open_source
     from featmap.io.pose_csv import read_corrections_csv
+    from featmap.io.run_metrics import read_run_metrics
     from featmap.pipeline import SegmentStore
     from featmap.pipeline.extract import extract_source
     from featmap.refinement.base import apply_corrections
@@ -645,7 +646,8 @@ def drive_points(run_dir: str | Path, cache_dir: str | Path) -> np.ndarray | Non
                                 SegmentStore(cache_dir), skip_bad_scans=spec.skip_bad_scans)
     poses = extraction.poses
     corrections_path = run_dir / "pose_corrections.csv"
-    if corrections_path.exists():
+    refinement = read_run_metrics(run_dir / "metrics.json").refinement
+    if refinement is not None and refinement.method != "none":       # the run wrote its corrections
         frames, corrections = read_corrections_csv(corrections_path)
         if list(frames) != list(extraction.frames):
             raise InputFileError(corrections_path, f"its frames are not the {len(extraction.frames)} frames of "

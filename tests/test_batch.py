@@ -386,10 +386,15 @@ def test_a_merged_map_without_truth_is_scored_against_the_drives_scan_points(fir
     assert rows[0]["count"] == merged.counts["proposed"]
     assert rows[0]["recall"] == pytest.approx(score["recall"]) and rows[0]["precision"] == pytest.approx(score["precision"])
 
-    log.rename(tmp_path / "moved.log")                     # the scans are gone: written, not scored
-    record = merge_task([("room_a", str(tmp_path / "out" / "room_a")), ("room_b", str(tmp_path / "out" / "room_b"))],
-                        str(tmp_path / "merged_again"), ("proposed",), plan_batch(path).merge_config,
-                        str(tmp / "cache"))
+    def merge_again():
+        return merge_task([("room_a", str(tmp_path / "out" / "room_a")), ("room_b", str(tmp_path / "out" / "room_b"))],
+                          str(tmp_path / "merged_again"), ("proposed",), plan_batch(path).merge_config, str(tmp / "cache"))
+
+    (tmp_path / "out" / "room_b" / "pose_corrections.csv").unlink()   # refined, but its corrections are gone
+    record = merge_again()
     assert record.scores == {} and record.counts["proposed"] == merged.counts["proposed"]
-    assert record.unscored.startswith("not scored: ") and "room.log" in record.unscored
+    assert record.unscored.startswith("not scored: ") and "room_b/pose_corrections.csv" in record.unscored
+    log.rename(tmp_path / "moved.log")                     # the scans are gone: written, not scored
+    record = merge_again()
+    assert record.scores == {} and "room.log" in record.unscored
     assert (tmp_path / "merged_again" / "fused_proposed.csv").exists()
