@@ -157,12 +157,12 @@ def normal_equations(inp: RefinementInput, c: np.ndarray, m: Matches, gate: floa
     JtW = J.T.multiply(w).tocsr()
     H, g = JtW @ J, JtW @ r
     if len(m):                                              # scan matching
-        H_match, g_match = _match_normal_equations(m, anchors, config, scale, F)
+        H_match, g_match = match_normal_equations(m, anchors, config, scale, F)
         H, g = H + H_match, g + g_match
     return H.tocsc(), g
 
 
-def _match_normal_equations(m: Matches, anchors: np.ndarray, config: AlignmentConfig, scale: float,
+def match_normal_equations(m: Matches, anchors: np.ndarray, config: AlignmentConfig, scale: float,
                             F: int) -> tuple[sparse.csr_matrix, np.ndarray]:
     """The matches' share of (H (3F, 3F), g (3F,)): each residual's 6 x 6 outer product summed per (source,
     target) scan pair first (a few per scan instead of hundreds of thousands of rows)."""
