@@ -516,6 +516,7 @@ class MergedInputs:
         frame: the merged frame's geo origin (the first drive's), or None (drives of one indoor log).
         left_out: drive -> why it is not in the merged map.
         trajectories: drive -> (F, 2) sensor positions in the merged frame.
+        alignment: the drives' rigid alignment (already applied to ``table`` and ``trajectories``), or None.
     """
 
     table: Any
@@ -524,14 +525,32 @@ class MergedInputs:
     frame: Any
     left_out: dict[str, str]
     trajectories: dict[str, np.ndarray]
+    alignment: Any = None
+
+    def drive_map(self, index: int, method: str) -> np.ndarray:
+        """(K, 4) drive ``index``'s own fused map (``fused_<method>.csv``) in the merged frame, aligned as
+        its segments are."""
+        from featmap.geo import reproject_segments
+        from featmap.io.segments_csv import read_fused_csv
+
+        d = self.drives[index]
+        fused, _ = read_fused_csv(Path(d.run_dir) / f"fused_{method}.csv")
+        if d.geo_frame is not None and self.frame is not None:
+            fused = reproject_segments(fused, d.geo_frame.frame(), self.frame)
+        if self.alignment is not None:
+            fused = self.alignment.segments(fused, np.full(len(fused), index))
+        return fused
 
 
-def merged_inputs(run_dirs: list[tuple[str, str | Path]]) -> MergedInputs:
+def merged_inputs(run_dirs: list[tuple[str, str | Path]], align=None) -> MergedInputs:
     """Read the drives' run folders and put their segments into the first drive's local frame.
 
     Drives with a geo origin are moved through WGS84 into the first one's frame. Drives without one
     (indoor logs) can only be merged with drives of the same source location (one log, several frame
-    ranges): they share its frame. Others are left out (listed in ``left_out``).
+    ranges): they share its frame. Others are left out (listed in ``left_out``). With ``align`` (a
+    ``refinement.drives`` section that is enabled) and several drives, each drive is then moved as a
+    whole so that the drives' own maps agree (:func:`featmap.refinement.drives.align_drives` on each
+    drive's ``fused_<method>.csv``, the proposed method's when the drives ran it).
     """
     from featmap.geo import reproject, reproject_segments
     from featmap.io.pose_csv import read_trajectory_xy
@@ -584,7 +603,27 @@ def merged_inputs(run_dirs: list[tuple[str, str | Path]]) -> MergedInputs:
                              extra={"drive": np.concatenate(drive_col).astype(float)})
     else:
         table = SegmentTable(scan=np.zeros(0, np.int64), segments=np.zeros((0, 4)), extra={"drive": np.zeros(0)})
-    return MergedInputs(table, drives, [d.name for d in drives], frame, left_out, trajectories)
+    inputs = MergedInputs(table, drives, [d.name for d in drives], frame, left_out, trajectories)
+    if align is None or not align.enabled or len(drives) < 2:
+        return inputs
+    from featmap.refinement.drives import align_drives
+
+    methods = [list(m.methods) for _, _, m in runs]
+    method = "proposed" if all("proposed" in ms for ms in methods) else next(
+        (k for k in methods[0] if all(k in ms for ms in methods)), None)
+    if method is None:                                  # no fused map all drives have
+        return inputs
+    alignment = align_drives([inputs.drive_map(k, method) for k in range(len(drives))], align)
+    if not alignment.applied:
+        return replace(inputs, alignment=alignment)
+    drive_index = table.extra["drive"].astype(np.int64)
+    moved = replace(table, segments=alignment.segments(table.segments, drive_index))
+    positions = {d.name: k for k, d in enumerate(drives)}
+    paths = {name: alignment.points(xy, positions[name]) for name, xy in trajectories.items()}
+    drives = [d.model_copy(update={"correction": [round(float(v), 4) for v in alignment.corrections[k, :2]]
+                                                 + [round(float(np.rad2deg(alignment.corrections[k, 2])), 5)]})
+              for k, d in enumerate(drives)]
+    return MergedInputs(moved, drives, inputs.names, frame, left_out, paths, alignment)
 
 
 def merged_reference(inputs: MergedInputs, evaluation=None, cache_dir: str | Path | None = None):
@@ -657,16 +696,19 @@ def drive_points(run_dir: str | Path, cache_dir: str | Path) -> np.ndarray | Non
 
 
 def merged_points(inputs: MergedInputs, cache_dir: str | Path) -> np.ndarray | None:
-    """(P, 2) every drive's scan points (``drive_points``) in the merged frame, or None when a drive has none."""
+    """(P, 2) every drive's scan points (``drive_points``) in the merged frame (aligned as the drives'
+    segments are), or None when a drive has none."""
     from featmap.geo import reproject
 
     parts = []
-    for d in inputs.drives:
+    for k, d in enumerate(inputs.drives):
         points = drive_points(d.run_dir, cache_dir)
         if points is None:
             return None
         if inputs.frame is not None and d.geo_frame is not None:
             points = reproject(points, d.geo_frame.frame(), inputs.frame)
+        if inputs.alignment is not None:
+            points = inputs.alignment.points(points, k)
         parts.append(points)
     return np.concatenate(parts) if parts else None
 
@@ -692,17 +734,16 @@ def merge_task(run_dirs: list[tuple[str, str]], out: str, methods: tuple[str, ..
     properties), ``map.kml`` and ``map.html`` (a layer per method and per drive's trajectory),
     ``config.yaml`` and ``merged.json`` (frame, drives, counts, scores and what they are against).
     """
-    from featmap.geo import reproject_segments
     from featmap.io.atomic import atomic_write_text
     from featmap.io.run_metrics import GeoRecord
-    from featmap.io.segments_csv import read_fused_csv, write_fused_csv, write_segments_csv
+    from featmap.io.segments_csv import write_fused_csv, write_segments_csv
     from featmap.pipeline.config import config_from_dict
     from featmap.pipeline.fuse import fuse_methods
     from featmap.pipeline.run_folder import RunFolder
 
     start = time.perf_counter()
     cfg = config_from_dict(config, "batch config")
-    inputs = merged_inputs(run_dirs)
+    inputs = merged_inputs(run_dirs, cfg.refinement.drives)
     table = inputs.table
     runs = fuse_methods(table, list(methods), cfg.fusion)
     unscored = None
@@ -722,11 +763,8 @@ def merge_task(run_dirs: list[tuple[str, str]], out: str, methods: tuple[str, ..
             evaluator, ref = reference
             scores[run.name] = evaluator.score(ref, r.segments)
             drive_scores[run.name] = {}
-            for d in inputs.drives:
-                alone, _ = read_fused_csv(Path(d.run_dir) / f"fused_{run.name}.csv")
-                if d.geo_frame is not None and inputs.frame is not None:
-                    alone = reproject_segments(alone, d.geo_frame.frame(), inputs.frame)
-                drive_scores[run.name][d.name] = evaluator.score(ref, alone)
+            for k, d in enumerate(inputs.drives):
+                drive_scores[run.name][d.name] = evaluator.score(ref, inputs.drive_map(k, run.name))
     with RunFolder(out, marker="merged.json") as folder:
         write_segments_csv(folder.tmp / "segments.csv", table)
         for run in runs:
@@ -741,6 +779,7 @@ def merge_task(run_dirs: list[tuple[str, str]], out: str, methods: tuple[str, ..
                               drives=inputs.drives, left_out=inputs.left_out, segments=len(table), counts=counts,
                               multi_drive=multi, reference=reference[1].path if reference is not None else None,
                               evaluator=reference[0].name if reference is not None else None, unscored=unscored,
+                              alignment=inputs.alignment.stats if inputs.alignment is not None else None,
                               scores=_plain(scores), drive_scores=_plain(drive_scores),
                               seconds=round(time.perf_counter() - start, 3))
         write_merged_record(folder.tmp / "merged.json", record)

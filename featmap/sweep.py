@@ -390,7 +390,7 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
         digest = _digest(Path(spec.input).read_bytes(), _reference_content(truth_path))
         return SweepInputs(table.segments, table.scan, reference, digest)
     if spec.batch is not None:
-        return _batch_inputs(Path(spec.batch), base.evaluation, cache_dir)
+        return _batch_inputs(Path(spec.batch), base, cache_dir)
     if spec.dataset is not None:
         source_spec = SourceSpec(spec.dataset, spec.location, spec.frames)
     elif spec.drive == "default":
@@ -409,15 +409,16 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
     return SweepInputs(table.segments, table.scan, reference, digest)
 
 
-def _batch_inputs(folder: Path, evaluation, cache_dir) -> SweepInputs:
-    """A finished batch's merged segments, scored as its merged map is (``featmap.batch.merged_reference``:
-    the drives' truths united, footprints, or the drives' scan points)."""
+def _batch_inputs(folder: Path, base: FeatmapConfig, cache_dir) -> SweepInputs:
+    """A finished batch's merged segments (its drives aligned by ``base.refinement.drives``), scored as its
+    merged map is (``featmap.batch.merged_reference``: the drives' truths united, footprints, or the
+    drives' scan points)."""
     from featmap.batch import MERGED, merged_inputs, merged_reference
     from featmap.io.batch_records import read_merged_record
 
     record = read_merged_record(folder / MERGED / "merged.json")
-    inputs = merged_inputs([(d.name, d.run_dir) for d in record.drives])
-    reference = merged_reference(inputs, evaluation, cache_dir)
+    inputs = merged_inputs([(d.name, d.run_dir) for d in record.drives], base.refinement.drives)
+    reference = merged_reference(inputs, base.evaluation, cache_dir)
     table = inputs.table
     digest = _digest(table.segments.tobytes(), table.scan.tobytes(), _reference_content(reference[1].path if reference else None))
     return SweepInputs(table.segments, table.scan, reference, digest)

@@ -9,6 +9,7 @@ import socket
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -122,6 +123,56 @@ def test_the_merged_map_fuses_walls_seen_by_several_drives_into_one(first_batch)
         assert len(segments) == len(rows)
     assert merged.multi_drive["proposed"] >= 3
     assert {"map.kml", "map.html", "config.yaml", "segments.csv"} <= {p.name for p in (tmp / "out" / "merged").iterdir()}
+
+
+def _moved_copy(run: Path, out: Path, motion: np.ndarray, about: np.ndarray) -> Path:
+    """A copy of run folder ``run`` whose segments, fused maps and trajectory are moved as a whole by the
+    planar ``motion`` (dx, dy, dyaw) about ``about``: a drive whose GPS was off by that much."""
+    from featmap.io.segments_csv import read_segments_csv, write_fused_csv, write_segments_csv
+    from featmap.refinement.base import correct_points, correct_segments
+
+    shutil.copytree(run, out)
+    move = lambda seg: correct_segments(seg, np.zeros(len(seg), int), about[None], motion[None])  # noqa: E731
+    table = read_segments_csv(run / "segments.csv")
+    write_segments_csv(out / "segments.csv", replace(table, segments=move(table.segments)))
+    for method in METHODS:
+        segments, support = read_fused_csv(run / f"fused_{method}.csv")
+        write_fused_csv(out / f"fused_{method}.csv", move(segments), support)
+    traj = np.loadtxt(run / "trajectory.csv", delimiter=",", skiprows=1, ndmin=2)
+    traj[:, 1:3] = correct_points(traj[:, 1:3], np.zeros(len(traj), int), about[None], motion[None])
+    np.savetxt(out / "trajectory.csv", traj, delimiter=",", header="frame,x,y,z,yaw", comments="", fmt="%.6f")
+    return out
+
+
+def test_a_drive_off_as_a_whole_is_aligned_to_the_others_before_merging(first_batch, tmp_path):
+    """A drive whose poses are off by 0.6 m and 1.5 deg as a whole (GPS of another day) is moved back onto
+    the first drive before the merged map is fused: one feature per wall instead of two."""
+    from featmap.batch import merge_task
+    from featmap.io.segments_csv import read_segments_csv
+
+    tmp, plan, result, _ = first_batch
+    tiny = tmp / "out" / "tiny"
+    segments = read_segments_csv(tiny / "segments.csv").segments
+    about = 0.5 * (segments[:, :2] + segments[:, 2:]).mean(axis=0)
+    motion = np.array([0.6, -0.4, np.deg2rad(1.5)])
+    off = _moved_copy(tiny, tmp_path / "tiny_off", motion, about)
+    drives = [("tiny", str(tiny)), ("tiny_off", str(off))]
+    alone = {r.name: r.counts for r in result.summary.drives}["tiny"]
+
+    merged = merge_task(drives, str(tmp_path / "merged"), tuple(METHODS), plan.merge_config)
+    assert merged.alignment["applied"] and merged.drives[0].correction == [0.0, 0.0, 0.0]
+    assert np.hypot(*merged.drives[1].correction[:2]) > 0.3 and abs(merged.drives[1].correction[2] + 1.5) < 0.05
+    table = read_segments_csv(tmp_path / "merged" / "segments.csv")
+    moved_back = table.segments[table.extra["drive"] == 1]
+    assert np.abs(moved_back - segments).max() < 0.03            # every segment back within 3 cm
+    for method in METHODS:
+        assert merged.counts[method] <= alone[method] + 1       # one feature per wall ...
+        assert merged.scores[method]["precision"] > 0.95 and merged.scores[method]["redundancy"] <= 1.05
+
+    config = {**plan.merge_config, "refinement": {**plan.merge_config["refinement"], "drives": {"enabled": False}}}
+    unaligned = merge_task(drives, str(tmp_path / "unaligned"), tuple(METHODS), config)
+    assert unaligned.alignment is None and unaligned.drives[1].correction is None
+    assert all(unaligned.counts[m] >= 1.5 * alone[m] for m in METHODS)   # ... instead of two
 
 
 def test_provenance_lists_the_drives_of_each_feature():

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Literal, Optional
+from typing import Literal, Optional, Union
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -78,6 +78,8 @@ class MergedDrive(_Model):
     segments: int
     geo_frame: Optional[GeoRecord] = None
     truth: Optional[str] = Field(None, description="the drive's simulator truth folder, if it had one")
+    correction: Optional[list[float]] = Field(None, description="dx, dy (m), dyaw (deg) the drive was moved by to "
+                                                                "agree with the others (about its map's centre)")
     frames_processed: list[int] = Field(default_factory=list)
 
 
@@ -96,6 +98,8 @@ class MergedRecord(_Model):
                                                        "a footprints file, or the drives' scan points")
     evaluator: Optional[str] = Field(None, description="the kind of reference: truth, footprints or map (truth-free)")
     unscored: Optional[str] = Field(None, description="why a map that could have been scored was not")
+    alignment: Optional[dict[str, Union[bool, int, float]]] = Field(
+        None, description="the drives' rigid alignment: applied, matches, agreement before and after (mm)")
     scores: dict[str, dict[str, Score]] = Field(default_factory=dict, description="method -> merged map's scores")
     drive_scores: dict[str, dict[str, dict[str, Score]]] = Field(
         default_factory=dict, description="method -> drive -> that drive's own map scored against the same reference")

@@ -1,7 +1,8 @@
 """Registry of pose-refinement methods by name, each with its own typed config section.
 
 ``RefinementConfig`` (the ``refinement:`` section of a run's config) is derived from ``METHODS``: which
-method runs (``method``), plus one section per method that has settings. A new method is one module
+method runs (``method``), plus one section per method that has settings, plus ``drives`` (the rigid
+alignment of a batch's drives before their merged map is fused, :mod:`featmap.refinement.drives`). A new method is one module
 (its function, config section and a ``METHOD`` entry) plus one line in ``METHODS``.
 """
 
@@ -16,6 +17,7 @@ from featmap.config import Section
 from featmap.errors import ConfigError
 from featmap.refinement import pose_graph, scan_to_map
 from featmap.refinement.base import RefinementInput, RefinementMethod, RefinementResult
+from featmap.refinement.drives import DriveAlignmentConfig
 
 
 def _keep_poses(inp: RefinementInput, config: object = None) -> RefinementResult:
@@ -32,7 +34,8 @@ RefinementConfig = create_model(
     "RefinementConfig", __base__=Section,
     __doc__="Pose refinement before fusion: the method and the settings of each.",
     method=(Literal[tuple(REFINEMENT_METHODS)], Field(DEFAULT_METHOD, description="none, or how to refine the scans' poses before fusion")),
-    **{m.name: (m.config_type, m.config_type()) for m in METHODS if m.config_type is not None})
+    **{m.name: (m.config_type, m.config_type()) for m in METHODS if m.config_type is not None},
+    drives=(DriveAlignmentConfig, DriveAlignmentConfig()))
 
 
 def get_refinement(name: str) -> RefinementMethod:
