@@ -4,8 +4,8 @@
 
 For each ``<log>-corrected.log.gz`` in ``$FEATMAP_SHARED/data/carmen_2d``, ``featmap batch`` runs its first
 and second half as two drives (the ``indoor_2d`` preset, as ``featmap run --carmen`` picks) on a 2-worker
-LocalCluster and merges them, once with each half's poses refined on their own (the preset) and once with
-the log's poses; the merged map is scored with the truth-free metric against both halves'
+LocalCluster and merges them: with each half's poses refined on their own, merged as they are and after
+aligning the halves (``refinement.drives``, the preset), and with the log's poses; the merged map is scored with the truth-free metric against both halves'
 scan points (``featmap.batch.merged_reference``). Beside it: each half's own map against the same points,
 and ``featmap run`` over the whole log (one drive: its poses refined together). Writes the table into the
 ``merged_real_2d`` block of docs/batch.md.
@@ -21,8 +21,11 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-VARIANTS = (("refined per half (indoor_2d)", []), ("as logged", ["refinement.method=none"]))
-"""Each half's poses as ``featmap run`` refines them, and the log's own (SLAM-corrected) poses."""
+VARIANTS = (("refined", "refined per half, halves not aligned", ["refinement.drives.enabled=false"]),
+            ("aligned", "refined per half, halves aligned (indoor_2d)", []),
+            ("logged", "as logged", ["refinement.method=none"]))
+"""(folder, label, --set): each half's poses as ``featmap run`` refines them, merged as they are or after
+the drives' rigid alignment (the preset), and the log's own (SLAM-corrected) poses."""
 
 
 def main() -> None:
@@ -51,8 +54,8 @@ def main() -> None:
         for name in args.logs:
             log = args.data_dir / f"{name}-corrected.log.gz"
             half = len(CarmenSource(log)) // 2
-            for poses, extra in VARIANTS:
-                folder = args.out / name / poses.split()[0]
+            for key, poses, extra in VARIANTS:
+                folder = args.out / name / key
                 folder.mkdir(parents=True, exist_ok=True)
                 batch = folder / "batch.yaml"
                 sets = ["output.plots=false", *extra]
