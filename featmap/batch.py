@@ -410,11 +410,19 @@ def fingerprint(location: str | Path) -> dict:
     return {"files": len(entries), "bytes": int(sum(e[1] for e in entries)), "hash": h}
 
 
+MERGE_ONLY = (("refinement", "drives"),)
+"""Config sections only the merge reads: they are not part of a drive's content key."""
+
+
 def drive_key(task: DriveTask, location: str) -> DriveKey:
-    """The content key of a drive's run: source identity (+ data fingerprint), resolved config, methods, version."""
+    """The content key of a drive's run: source identity (+ data fingerprint), resolved config (without
+    the sections only the merge reads, :data:`MERGE_ONLY`), methods, version."""
     source = {"kind": task.spec.kind, "location": str(location), "frames": task.spec.frames,
               "skip_bad_scans": task.spec.skip_bad_scans, "data": fingerprint(location)}
-    text = json.dumps({"source": source, "config": task.config, "methods": list(task.methods),
+    config = json.loads(json.dumps(task.config))
+    for section, key in MERGE_ONLY:
+        config.get(section, {}).pop(key, None)
+    text = json.dumps({"source": source, "config": config, "methods": list(task.methods),
                        "featmap": __version__}, sort_keys=True)
     return DriveKey(key=hashlib.blake2b(text.encode(), digest_size=20).hexdigest(), featmap_version=__version__,
                     source=source, methods=list(task.methods))
