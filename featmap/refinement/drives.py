@@ -21,13 +21,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import Field, field_validator
+from pydantic import Field
 from scipy import sparse
 
 from featmap.config import Section
 from featmap.refinement.base import correct_points, correct_segments
 from featmap.refinement.matching import MatchCandidates, segment_matches
-from featmap.refinement.terms import (FIXED_SIGMA, LEVER_M, AlignmentConfig, correction_size,
+from featmap.refinement.terms import (FIXED_SIGMA, LEVER_M, AlignmentConfig, Gates, correction_size,
                                      match_normal_equations, solve_normal_equations)
 
 OBSERVED = 1e-4
@@ -41,7 +41,7 @@ class DriveAlignmentConfig(Section):
     """Rigid alignment of the drives of a batch before their merged map is fused (world frame, metres)."""
 
     enabled: bool = Field(True, description="align each drive's map to the others before fusing them together")
-    gates_m: list[float] = Field([2.0, 1.0, 0.5, 0.25, 0.12], min_length=1, description="match distance gate of each round, coarse to fine")
+    gates_m: Gates = Field([2.0, 1.0, 0.5, 0.25, 0.12], min_length=1, description="match distance gate of each round, coarse to fine")
     iterations_per_gate: int = Field(3, ge=1, description="Gauss-Newton iterations (each re-matching) per gate")
     angle_deg: float = Field(5.0, gt=0, lt=90, description="matched features are within this angle of parallel")
     min_overlap_m: float = Field(1.0, gt=0, description="shorter overlaps are not matched")
@@ -49,13 +49,6 @@ class DriveAlignmentConfig(Section):
     prior_sigma_deg: float = Field(2.0, gt=0, description="... and turned")
     min_improvement: float = Field(1.5, ge=1, description="keep the drives as they are unless this many times more of their maps then agree within the finest gate ...")
     min_correction_m: float = Field(0.03, ge=0, description="... and some drive moves by at least this (a point 10 m from its map's centre)")
-
-    @field_validator("gates_m")
-    @classmethod
-    def _positive(cls, value: list[float]) -> list[float]:
-        if any(not g > 0 for g in value):
-            raise ValueError(f"every gate must be positive, got {value}")
-        return value
 
 
 @dataclass(frozen=True)

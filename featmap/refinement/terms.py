@@ -22,10 +22,10 @@ scans that already agree (exact poses) are left exactly as they were.
 
 from __future__ import annotations
 
-from typing import Optional
+from typing import Annotated, Optional
 
 import numpy as np
-from pydantic import Field, field_validator
+from pydantic import AfterValidator, Field
 from scipy import sparse
 from scipy.sparse.linalg import spsolve
 
@@ -37,10 +37,20 @@ FIXED_SIGMA = 1e-6
 """Standard deviation (metres, radians) that holds the first scan in place when there is no absolute prior."""
 
 
+def _positive_gates(value: list[float]) -> list[float]:
+    if any(not g > 0 for g in value):
+        raise ValueError(f"every gate must be positive, got {value}")
+    return value
+
+
+Gates = Annotated[list[float], AfterValidator(_positive_gates)]
+"""Match distance gates of the rounds of an alignment, coarse to fine (metres, each positive)."""
+
+
 class AlignmentConfig(Section):
     """Settings shared by the alignment methods (world frame, metres)."""
 
-    gates_m: list[float] = Field([1.0, 0.5, 0.25, 0.12], min_length=1, description="match distance gate of each round, coarse to fine")
+    gates_m: Gates = Field([1.0, 0.5, 0.25, 0.12], min_length=1, description="match distance gate of each round, coarse to fine")
     iterations_per_gate: int = Field(2, ge=1, description="Gauss-Newton iterations (each re-matching) per gate")
     angle_deg: float = Field(5.0, gt=0, lt=90, description="matched segments are within this angle of parallel")
     margin_m: float = Field(0.5, ge=0, description="a segment may overlap another this far beyond its endpoints")
@@ -61,13 +71,6 @@ class AlignmentConfig(Section):
     motion_floor_deg: float = Field(0.01, gt=0, description="relative heading prior never tighter than this (degrees)")
     min_improvement: float = Field(1.5, ge=1, description="keep the input poses unless the mean distance between matched segments of different scans shrinks by at least this factor ...")
     min_correction_m: float = Field(0.03, ge=0, description="... and some scan moves by at least this (a point 10 m from its sensor)")
-
-    @field_validator("gates_m")
-    @classmethod
-    def _positive(cls, value: list[float]) -> list[float]:
-        if any(not g > 0 for g in value):
-            raise ValueError(f"every gate must be positive, got {value}")
-        return value
 
 
 def _perp(v: np.ndarray) -> np.ndarray:

@@ -25,6 +25,8 @@ def test_defaults_and_the_indoor_preset():
     ("refinement.pose_graph.angle_deg=90", "'refinement.pose_graph.angle_deg' input should be less than 90"),
     ("refinement.scan_to_map.window_scans=0", "'refinement.scan_to_map.window_scans' input should be greater than or equal to 1"),
     ("refinement.pose_graph.gate=1", "unknown key 'refinement.pose_graph.gate'"),
+    ("refinement.drives.gates_m=[2.0,0]", "'refinement.drives.gates_m' value error, every gate must be positive"),
+    ("refinement.drives.prior_sigma_m=0", "'refinement.drives.prior_sigma_m' input should be greater than 0"),
 ])
 def test_bad_values_are_one_line_errors(override, needle):
     with pytest.raises(ConfigError) as err:
