@@ -168,6 +168,13 @@ def test_a_drive_off_as_a_whole_is_aligned_to_the_others_before_merging(first_ba
     for method in METHODS:
         assert merged.counts[method] <= alone[method] + 1       # one feature per wall ...
         assert merged.scores[method]["precision"] > 0.95 and merged.scores[method]["redundancy"] <= 1.05
+    from featmap.sweep import run_sweep_file                     # a sweep of it aligns the drives the same way
+
+    spec = tmp_path / "s.yaml"
+    spec.write_text(f"batch: {tmp_path}\nmethods: [proposed]\ngrid:\n  fusion.proposed.eta_m: [0.5]\n")
+    rows, _ = run_sweep_file(spec, tmp_path / "sweep")
+    assert rows[0]["count"] == merged.counts["proposed"]
+    assert rows[0]["precision"] == pytest.approx(merged.scores["proposed"]["precision"])
 
     config = {**plan.merge_config, "refinement": {**plan.merge_config["refinement"], "drives": {"enabled": False}}}
     unaligned = merge_task(drives, str(tmp_path / "unaligned"), tuple(METHODS), config)
