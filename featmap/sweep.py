@@ -7,7 +7,7 @@ A sweep file::
     input: runs/residential/segments.csv  # a run's segments (its metrics.json gives the reference), or
     drive: default                        # a source: default (the simulated residential drive),
     #   drive: 2011_09_30_drive_0018 (+ data_dir, frames), or dataset: NAME + location: PATH, or
-    #   batch: runs/batch/example           # a finished batch's merged segments (scored against its drives' truths)
+    #   batch: runs/batch/example           # a finished batch's merged segments (aligned and scored as its merge was)
     truth: path/to/truth_or_footprints    # optional; found from the run's metrics.json otherwise
     methods: [proposed, meanshift]
     grid:
