@@ -39,15 +39,14 @@ def _read_table(path: Path, kind: str, header: str) -> np.ndarray:
     try:
         with open(path, encoding="utf-8") as f:
             first = f.readline().strip()
+            if first != header:
+                raise InputFileError(path, f"{what} (its header is {first[:60]!r})", 1)
+            table = np.loadtxt(f, delimiter=",", ndmin=2)     # the rows after the header
     except (OSError, UnicodeDecodeError) as exc:
         raise InputFileError(path, f"{what} ({exc})") from None
-    if first != header:
-        raise InputFileError(path, f"{what} (its header is {first[:60]!r})", 1)
-    columns = header.count(",") + 1
-    try:
-        table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
     except ValueError as exc:                   # (numpy's advice on `usecols` is not the user's to follow)
         raise InputFileError(path, f"{what} ({str(exc).split(';')[0]})") from None
+    columns = header.count(",") + 1
     if len(table) and (table.shape[1] != columns or not np.isfinite(table).all()):
         raise InputFileError(path, f"{what} (rows of {table.shape[1]} values, or non-finite values)")
     return table.reshape(-1, columns)
