@@ -136,7 +136,7 @@ class WorldResult:
     methods: dict
 
 
-def score_world(root: Path, frames: list[int], segments: np.ndarray, scan: np.ndarray, config,
+def score_world(root: Path, frames: list[int], segments: np.ndarray, scan: np.ndarray, rms: np.ndarray, config,
                 methods: list[str]) -> dict:
     """Observation recall, coverage and every method's fused metrics for one world's extracted segments."""
     ds = KittiRawDataset(root, DRIVE)
@@ -157,7 +157,7 @@ def score_world(root: Path, frames: list[int], segments: np.ndarray, scan: np.nd
            "segment_coverage": union_coverage(segments, truth), "methods": {}}
     for name in methods:
         start = time.perf_counter()
-        result = fuse(name, segments, scan, config.fusion)
+        result = fuse(name, segments, scan, config.fusion, rms=rms)
         seconds = time.perf_counter() - start
         metrics = truth_metrics(result.segments, truth)
         metrics["fusion_seconds"] = seconds
@@ -338,7 +338,7 @@ def _run(args, console: Console) -> int:
             table = extraction.world_table()
             frames_of[seed] = extraction.frames
             extracted_now += extraction.extracted_now
-            per_seed[seed] = {"segments": [table.segments], "scan": [table.scan],
+            per_seed[seed] = {"segments": [table.segments], "scan": [table.scan], "rms": [table.extra["rms"]],
                               "ms": [1000 * t for t in extraction.scan_seconds],
                               "points": [len(ds[0].points)]}
     wall_seconds = time.perf_counter() - start
@@ -351,8 +351,9 @@ def _run(args, console: Console) -> int:
         acc = per_seed[seed]
         segments = np.concatenate(acc["segments"]) if acc["segments"] else np.zeros((0, 4))
         scan = np.concatenate(acc["scan"]) if acc["scan"] else np.zeros(0, np.int64)
+        rms = np.concatenate(acc["rms"]) if acc["rms"] else np.zeros(0)
         root = drive_root(args.sim_root, args.split, seed)
-        scored = score_world(root, frames_of[seed], segments, scan, config, methods)
+        scored = score_world(root, frames_of[seed], segments, scan, rms, config, methods)
         g = generate(seed).settings
         label = f"{g.sensor.name} {g.sensor.azimuth_step_deg:.2f}° {100 * g.noise_m:.1f}cm {100 * g.dropout:.0f}%"
         results.append(WorldResult(seed, label, len(frames_of[seed]), scored["n_obs"], scored["found"], scored["few"],

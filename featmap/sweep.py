@@ -51,6 +51,7 @@ from featmap.config import apply_overrides, closest_key, leaf_keys, read_yaml_ma
 from featmap.errors import ConfigError, FeatmapError
 from featmap.evaluation import Evaluator, Reference
 from featmap.fusion import FUSION_METHODS, fuse
+from featmap.io.segments_csv import SegmentTable
 from featmap.pipeline.config import FeatmapConfig, config_from_dict, resolve_config_path
 from featmap.pipeline.executor import Executor, SerialExecutor
 from featmap.reporting import NullReporter, Reporter, track
@@ -245,11 +246,12 @@ def _score(metrics: dict) -> dict:
 
 @dataclass(frozen=True)
 class SweepInputs:
-    """What every combination is evaluated on: world-frame segments (N, 4), their scans (N,), and the
-    reference (an evaluator with its prepared reference) or None."""
+    """What every combination is evaluated on: world-frame segments (N, 4), their scans (N,), their fit rms
+    (N,) or None, and the reference (an evaluator with its prepared reference) or None."""
 
     segments: np.ndarray
     scan: np.ndarray
+    rms: np.ndarray | None
     reference: tuple[Evaluator, Reference] | None
     digest: str
 
@@ -259,7 +261,7 @@ def _evaluate(task: tuple[SweepInputs, str, str, dict]) -> tuple[str, dict]:
     inputs, key, method, config_dict = task
     config = FeatmapConfig.model_validate(config_dict)
     start = time.perf_counter()
-    result = fuse(method, inputs.segments, inputs.scan, config.fusion)
+    result = fuse(method, inputs.segments, inputs.scan, config.fusion, rms=inputs.rms)
     seconds = time.perf_counter() - start
     metrics: dict = {"count": len(result)}
     if inputs.reference is not None:
@@ -388,7 +390,7 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
                 raise FeatmapError(f"{spec_path}: truth {truth_path} is not a truth/ folder or a footprints file")
             reference = (ev, ref)
         digest = _digest(Path(spec.input).read_bytes(), _reference_content(truth_path))
-        return SweepInputs(table.segments, table.scan, reference, digest)
+        return SweepInputs(table.segments, table.scan, table.extra.get("rms"), reference, digest)
     if spec.batch is not None:
         return _batch_inputs(Path(spec.batch), base, cache_dir)
     if spec.dataset is not None:
@@ -405,8 +407,15 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
     ctx = EvaluationContext(source.location, extraction.frames, source.geo_origin, base.evaluation,
                             extraction.world_points(poses), table.segments)
     reference = primary_reference(ctx)
-    digest = _digest(table.segments.tobytes(), table.scan.tobytes(), _reference_content(reference[1].path if reference else None))
-    return SweepInputs(table.segments, table.scan, reference, digest)
+    return _table_inputs(table, reference)
+
+
+def _table_inputs(table: SegmentTable, reference: tuple[Evaluator, Reference] | None) -> SweepInputs:
+    """Sweep inputs from a world-frame segment table (its ``rms`` column, when it has one, goes along)."""
+    rms = table.extra.get("rms")
+    parts = [table.segments.tobytes(), table.scan.tobytes()] + ([] if rms is None else [np.asarray(rms).tobytes()])
+    digest = _digest(*parts, _reference_content(reference[1].path if reference else None))
+    return SweepInputs(table.segments, table.scan, rms, reference, digest)
 
 
 def _batch_inputs(folder: Path, base: FeatmapConfig, cache_dir) -> SweepInputs:
@@ -420,8 +429,7 @@ def _batch_inputs(folder: Path, base: FeatmapConfig, cache_dir) -> SweepInputs:
     inputs = merged_inputs([(d.name, d.run_dir) for d in record.drives], base.refinement.drives)
     reference = merged_reference(inputs, base.evaluation, cache_dir)
     table = inputs.table
-    digest = _digest(table.segments.tobytes(), table.scan.tobytes(), _reference_content(reference[1].path if reference else None))
-    return SweepInputs(table.segments, table.scan, reference, digest)
+    return _table_inputs(table, reference)
 
 
 def made_with(spec: SweepSpec) -> str | None:

@@ -98,7 +98,9 @@ def test_the_merged_map_fuses_walls_seen_by_several_drives_into_one(first_batch)
         (merged.drives[0].geo_frame.lat0_deg, merged.drives[0].geo_frame.lon0_deg)
     # scan ids stay unique across drives
     seg = np.loadtxt(tmp / "out" / "merged" / "segments.csv", delimiter=",", skiprows=1)
-    drive_col = list(next(csv.reader(open(tmp / "out" / "merged" / "segments.csv")))).index("drive")
+    header = next(csv.reader(open(tmp / "out" / "merged" / "segments.csv")))
+    drive_col = header.index("drive")
+    assert "rms" in header                  # every drive's fit rms goes along (the clean-view support rule)
     for d in range(3):
         for e in range(d + 1, 3):
             assert not set(seg[seg[:, drive_col] == d, 0]) & set(seg[seg[:, drive_col] == e, 0])

@@ -55,7 +55,8 @@ class FusionMethod:
         fuse: ``fuse(segments (N, 4) world frame, scan (N,), config, progress=None) -> FusionResult`` (before
             corner optimisation); ``progress(done, total)`` is called now and then by long fusions.
         support_rule: ``config -> SupportRule`` for a method that drops small clusters (refinement
-            applies the same rule to the features it makes); None: every cluster is kept.
+            applies the same rule to the features it makes); None: every cluster is kept. Such a method's
+            ``fuse`` also takes ``clean=`` (N,) bool or None, the segments that are clean views.
         prepare: imports the method's heavy libraries and loads its compiled code, so that callers can keep
             that one-off cost out of fusion timings.
     """
@@ -75,20 +76,49 @@ class SupportRule:
     """Which clusters a support filter keeps: those with at least ``min_support`` members, and, when
     ``min_length_m`` is set, smaller ones whose members cover at least that length of their line
     (a single member only when it covers ``min_single_length_m``, if set: one view is weaker
-    evidence than two that agree)."""
+    evidence than two that agree), and, when ``clean_rms_ratio`` is set, smaller ones with a clean
+    view among their members (:meth:`clean_views`: a segment much thinner than the input's typical
+    wall is a plane seen well, not clutter)."""
 
     min_support: int = 1
     min_length_m: Optional[float] = None
     min_single_length_m: Optional[float] = None
+    clean_rms_ratio: Optional[float] = None
+    clean_min_length_m: float = 0.0
 
-    def keep(self, members: np.ndarray, covered: Callable[[], np.ndarray]) -> np.ndarray:
+    def clean_views(self, segments: np.ndarray, rms: np.ndarray | None) -> np.ndarray | None:
+        """(N,) True for the segments that are evidence of a wall on their own: at least
+        ``clean_min_length_m`` long with a fit rms at most ``clean_rms_ratio`` times the median rms of all
+        N (the input's typical wall). None when the rule has no such clause or ``rms`` is None.
+
+        Args:
+            segments: (N, 4) world-frame segments (metres); rms: (N,) each one's fit rms from the
+                extraction (metres; a non-finite value is never clean).
+        """
+        if self.clean_rms_ratio is None or rms is None:
+            return None
+        rms = np.asarray(rms, dtype=float).reshape(-1)
+        if len(rms) != len(segments):
+            raise ValueError(f"rms has {len(rms)} entries for {len(segments)} segments")
+        known = np.isfinite(rms)
+        if not known.any():
+            return np.zeros(len(rms), dtype=bool)
+        limit = self.clean_rms_ratio * float(np.median(rms[known]))
+        with np.errstate(invalid="ignore"):
+            return known & (rms <= limit) & (segment_lengths(segments) >= self.clean_min_length_m)
+
+    def keep(self, members: np.ndarray, covered: Callable[[], np.ndarray],
+             clean_members: np.ndarray | None = None) -> np.ndarray:
         """(C,) kept clusters from their (C,) member counts; ``covered()`` gives each one's covered
-        length (C,) (called only when the length rule is needed)."""
+        length (C,) (called only when the length rule is needed); ``clean_members`` (C,): how many of each
+        cluster's members are clean views (:meth:`clean_views`); one keeps the cluster."""
         kept = members >= self.min_support
         if self.min_length_m is not None and not kept.all():
             length = covered()
             single = self.min_length_m if self.min_single_length_m is None else self.min_single_length_m
             kept |= (length >= self.min_length_m) & ((members >= 2) | (length >= single))
+        if clean_members is not None:
+            kept |= clean_members > 0
         return kept
 
 

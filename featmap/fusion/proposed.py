@@ -10,7 +10,7 @@ Two segments extracted in *different* scans are linked when all three criteria h
 Clusters are the connected groups of linked segments (what the paper's sequential labelling of
 Section 3.2 produces); clusters with fewer than ``min_support`` members are dropped (unless, with
 ``min_support_length_m``, their members cover that much of one line, and a lone segment
-``min_single_length_m``); each remaining
+``min_single_length_m``, or, with ``clean_rms_ratio``, one member is a clean view); each remaining
 cluster becomes the total-least-squares line through its members' endpoints, cut at the extreme
 projections of those endpoints.
 
@@ -49,6 +49,8 @@ class ProposedConfig(Section):
     min_support: int = Field(4, ge=1, description="drop clusters with fewer member segments")
     min_support_length_m: Optional[float] = Field(3.0, ge=0, description="also keep smaller clusters whose members cover at least this length of their line (null = the paper's count rule only) ...")
     min_single_length_m: Optional[float] = Field(5.0, ge=0, description="... a single segment only if it covers this much (one view is weaker evidence than two that agree; null = min_support_length_m)")
+    clean_rms_ratio: Optional[float] = Field(0.5, gt=0, description="also keep smaller clusters with a clean view: a member whose fit rms is at most this times the median of all segments' (the extraction's rms column; null = off) ...")
+    clean_min_length_m: float = Field(1.4, ge=0, description="... and that is at least this long")
     fit_weighting: Literal["length", "none"] = Field("length", description="weight of each member's endpoints in the TLS fit")
 
 
@@ -213,7 +215,7 @@ def cluster_segments(n: int, i: np.ndarray, j: np.ndarray, scan: np.ndarray,
 
 
 def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig(),
-                  progress: Callable[[int, int], None] | None = None) -> FusionResult:
+                  progress: Callable[[int, int], None] | None = None, clean: np.ndarray | None = None) -> FusionResult:
     """Fuse world-frame segments with the paper's method.
 
     Args:
@@ -221,6 +223,7 @@ def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig(),
         scan: (N,) index of the scan each segment was extracted from.
         config: thresholds delta, gamma, eta, the support filter and fit weighting.
         progress: optional ``progress(done, total)`` callback (scans linked so far, all scans).
+        clean: (N,) True for the segments that are clean views (``SupportRule.clean_views``), or None.
     Returns:
         FusionResult with (M, 4) fused segments (before corner optimisation; the registry applies it).
     """
@@ -239,7 +242,8 @@ def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig(),
         lines = fit_clusters(seg, groups, len(sizes), segment_lengths(seg))
         return observed_length(lines, seg, np.where(small, groups, -1))
 
-    kept = support_rule(config).keep(sizes, covered)
+    clean_members = None if clean is None else np.bincount(groups, weights=clean[idx], minlength=len(sizes))
+    kept = support_rule(config).keep(sizes, covered, clean_members)
     new_id = np.full(len(sizes), -1, dtype=np.int64)
     new_id[kept] = np.arange(kept.sum())
     sub_labels = new_id[groups]
@@ -254,7 +258,8 @@ def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig(),
 
 def support_rule(config: ProposedConfig) -> SupportRule:
     """The support filter of the proposed method's config."""
-    return SupportRule(config.min_support, config.min_support_length_m, config.min_single_length_m)
+    return SupportRule(config.min_support, config.min_support_length_m, config.min_single_length_m,
+                       config.clean_rms_ratio, config.clean_min_length_m)
 
 
 METHOD = FusionMethod(name="proposed", title="Proposed (three criteria)", color="#d62728", linestyle="-",

@@ -317,7 +317,7 @@ def join_bends(fused: np.ndarray, first: np.ndarray, second: np.ndarray) -> tupl
 
 
 def refine(result: FusionResult, segments, scan, config: RefineConfig,
-           rule: SupportRule = SupportRule()) -> FusionResult:
+           rule: SupportRule = SupportRule(), clean: np.ndarray | None = None) -> FusionResult:
     """Apply the enabled refinement steps to one method's result (see the module docstring).
 
     Args:
@@ -325,7 +325,8 @@ def refine(result: FusionResult, segments, scan, config: RefineConfig,
         segments: (N, 4) the method's world-frame input; scan: (N,) scan of each segment.
         config: ``max_offset_m = 0`` turns split and merge off; ``split_gap_m = 0`` the gap split.
         rule: the method's support rule, applied again to the refined features (a piece split off a
-            cluster must earn its place like any cluster).
+            cluster must earn its place like any cluster); clean: (N,) the segments that are clean views
+            for that rule (``SupportRule.clean_views``), or None.
     Returns:
         A FusionResult whose segments, support, labels and segments_before_corners describe the
         refined features (corner optimisation still to come); ``extras["refine"]`` counts the changes.
@@ -375,7 +376,10 @@ def refine(result: FusionResult, segments, scan, config: RefineConfig,
 
     if rule.min_support > 1 and len(fused):
         members = np.bincount(labels[labels >= 0], minlength=len(fused))
-        keep = rule.keep(members, lambda: observed_length(fused, segments, labels))
+        member = labels >= 0
+        clean_members = (None if clean is None else
+                         np.bincount(labels[member], weights=clean[member], minlength=len(fused)))
+        keep = rule.keep(members, lambda: observed_length(fused, segments, labels), clean_members)
         stats["dropped"] = int((~keep).sum())
         remap = np.full(len(fused), -1, dtype=np.int64)
         remap[keep] = np.arange(keep.sum())

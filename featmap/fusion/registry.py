@@ -82,7 +82,7 @@ def prepare_method(name: str) -> None:
 
 
 def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig(),  # type: ignore[valid-type]
-         progress: Callable[[int, int], None] | None = None) -> FusionResult:
+         progress: Callable[[int, int], None] | None = None, rms=None) -> FusionResult:
     """Run method ``name`` with its section of ``config`` (the ``fusion:`` section), then the shared
     refinement (``fusion.refine``: consistent clusters, gap splitting) and corner optimisation.
 
@@ -90,15 +90,22 @@ def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig(),  # ty
         segments: (N, 4) world-frame segments ``x1, y1, x2, y2`` (metres).
         scan: (N,) scan index of each segment.
         progress: called as ``progress(done, total)`` now and then by long fusions (the method's own units).
+        rms: (N,) each segment's fit rms from the extraction (metres; the ``rms`` column of segments.csv),
+            or None; a support rule with a clean-view clause needs it (without it no view is clean).
     """
     method = get_method(name)
     segments = as_segments(segments)
     origin = working_origin(segments[np.isfinite(segments).all(axis=1)])
     shift = np.tile(origin, 2)
     section = getattr(config, name)
-    result = method.fuse(segments - shift, scan, section, progress=progress)
-    rule = method.support_rule(section) if method.support_rule else SupportRule()
-    result = refine(result, segments - shift, scan, config.refine, rule)
+    if method.support_rule is None:
+        rule, clean = SupportRule(), None
+        result = method.fuse(segments - shift, scan, section, progress=progress)
+    else:
+        rule = method.support_rule(section)
+        clean = rule.clean_views(segments, rms)
+        result = method.fuse(segments - shift, scan, section, progress=progress, clean=clean)
+    result = refine(result, segments - shift, scan, config.refine, rule, clean)
     before = result.segments_before_corners
     after = optimise_corners(before, config.corners)
     if not origin.any():

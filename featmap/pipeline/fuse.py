@@ -44,7 +44,7 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
         with reporter.progress("fusing", len(methods)) as advance:
             for name in methods:
                 start = time.perf_counter()
-                result = fuse(name, table.segments, table.scan, config)
+                result = fuse(name, table.segments, table.scan, config, rms=table.extra.get("rms"))
                 runs.append(MethodRun(name, result, time.perf_counter() - start))
                 advance(1)
     else:
@@ -58,7 +58,7 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
                     shown[0] = percent
 
                 start = time.perf_counter()
-                result = fuse(name, table.segments, table.scan, config, progress)
+                result = fuse(name, table.segments, table.scan, config, progress, rms=table.extra.get("rms"))
                 runs.append(MethodRun(name, result, time.perf_counter() - start))
     for run in runs:
         if len(run.result) == 0 and len(table) > 0:

@@ -317,7 +317,8 @@ def make_figures(run: FigureInputs, out: str | Path) -> list[Path]:
     """Every figure for one run, written into ``out``; returns the paths."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    results = {name: fuse(name, run.segments.segments, run.segments.scan, run.fusion) for name in run.methods}
+    results = {name: fuse(name, run.segments.segments, run.segments.scan, run.fusion, rms=run.segments.extra.get("rms"))
+               for name in run.methods}
     centres = local_map_centres(run, results)
     paths = fig_feature_circles(run, out)
     if "proposed" in results:

@@ -70,6 +70,33 @@ def test_small_clusters_are_kept_by_length_a_single_view_only_when_long(scans, l
     assert (len(result.segments) == 1) == kept
 
 
+@pytest.mark.parametrize("rms,length,kept", [(0.004, 2.0, True), (0.012, 2.0, False), (0.004, 1.2, False),
+                                             (np.nan, 2.0, False)])
+def test_a_lone_view_much_thinner_than_the_typical_wall_is_kept(rms, length, kept):
+    """A wall seen 20 times (rms 1 cm per view) and a lone 2 m piece elsewhere: the piece is kept when its rms
+    is at most half the median (clean_rms_ratio 0.5) and it is at least 1.4 m long, whatever its scan."""
+    rng = np.random.default_rng(4)
+    segs, scan = observe_walls(np.array([0.0, 0.0, 30.0, 0.0]), 20, 0.02, rng)
+    segs = np.vstack([segs, [[5.0, 10.0, 5.0 + length, 10.0]]])
+    scan = np.concatenate([scan, [7]])
+    rms_all = np.r_[np.full(20, 0.01), rms]
+    result = fuse("proposed", segs, scan, FusionConfig(), rms=rms_all)
+    assert len(result.segments) == (2 if kept else 1)
+    assert (result.labels[-1] >= 0) == kept
+    if kept:
+        assert result.segments[result.labels[-1]] == pytest.approx([5.0, 10.0, 5.0 + length, 10.0], abs=1e-9)
+    # without the extraction's rms, or with the paper's count rule, no view is clean
+    assert len(fuse("proposed", segs, scan, FusionConfig()).segments) == 1
+    paper = FusionConfig.model_validate({"proposed": {"clean_rms_ratio": None}})
+    assert len(fuse("proposed", segs, scan, paper, rms=rms_all).segments) == 1
+
+
+def test_clean_views_need_one_rms_per_segment():
+    segs = np.array([[0.0, 0.0, 2.0, 0.0]] * 3)
+    with pytest.raises(ValueError, match="rms has 2 entries for 3 segments"):
+        fuse("proposed", segs, np.arange(3), FusionConfig(), rms=np.array([0.01, 0.01]))
+
+
 @pytest.mark.parametrize("wall", [[7.0, -10.0, 7.0, 20.0], [-10.0, 4.0, 25.0, 4.0]])
 def test_axis_aligned_walls(wall):
     rng = np.random.default_rng(5)

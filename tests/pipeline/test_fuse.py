@@ -31,6 +31,24 @@ def test_fuse_writes_fused_csv_and_config(tmp_path):
     assert "features out" in res.output
 
 
+def test_fuse_keeps_a_lone_clean_view_by_the_rms_column_of_segments_csv(tmp_path):
+    """A lone 2 m segment in scan 99 is dropped by the support rule unless segments.csv says it was fitted
+    twice as tightly as the typical segment (the clean-view clause reads the ``rms`` column)."""
+    rng = np.random.default_rng(0)
+    walls = np.array([[0, 0, 30, 0], [0, 15, 30, 15], [30, 0, 30, -20]], float)
+    segs, scan = observe_walls(walls, 15, 0.03, rng, first_scan=np.zeros(3, int))
+    segs = np.vstack([segs, [[10.0, 7.0, 12.0, 7.0]]])
+    scan = np.r_[scan, 99]
+    counts = {}
+    for name, lone_rms in [("clean", 0.004), ("rough", 0.02)]:
+        path = write_segments_csv(tmp_path / f"{name}.csv", SegmentTable(
+            scan=scan, segments=segs, extra={"rms": np.r_[np.full(len(segs) - 1, 0.01), lone_rms]}))
+        res = runner.invoke(app, ["fuse", str(path), "--method", "proposed", "--out", str(tmp_path / name)])
+        assert res.exit_code == 0, res.output
+        counts[name] = len(read_fused_csv(tmp_path / name / "fused_proposed.csv")[0])
+    assert counts == {"clean": 4, "rough": 3}
+
+
 def test_fuse_all_methods(tmp_path):
     seg = _segments_csv(tmp_path / "segments.csv")
     res = runner.invoke(app, ["fuse", str(seg), "--method", "all", "--out", str(tmp_path / "o")])
