@@ -375,8 +375,8 @@ def refine(result: FusionResult, segments, scan, config: RefineConfig,
         fused, stats["bends_joined"] = join_bends(fused, labels[bends[:, 0]], labels[bends[:, 1]])
 
     if rule.min_support > 1 and len(fused):
-        members = np.bincount(labels[labels >= 0], minlength=len(fused))
         member = labels >= 0
+        members = np.bincount(labels[member], minlength=len(fused))
         clean_members = (None if clean is None else
                          np.bincount(labels[member], weights=clean[member], minlength=len(fused)))
         keep = rule.keep(members, lambda: observed_length(fused, segments, labels), clean_members)

@@ -82,7 +82,8 @@ def prepare_method(name: str) -> None:
 
 
 def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig(),  # type: ignore[valid-type]
-         progress: Callable[[int, int], None] | None = None, rms=None) -> FusionResult:
+         progress: Callable[[int, int], None] | None = None,
+         rms: np.ndarray | None = None) -> FusionResult:
     """Run method ``name`` with its section of ``config`` (the ``fusion:`` section), then the shared
     refinement (``fusion.refine``: consistent clusters, gap splitting) and corner optimisation.
 
