@@ -89,23 +89,25 @@ class SupportRule:
     def clean_views(self, segments: np.ndarray, rms: np.ndarray | None) -> np.ndarray | None:
         """(N,) True for the segments that are evidence of a wall on their own: at least
         ``clean_min_length_m`` long with a fit rms at most ``clean_rms_ratio`` times the median rms of all
-        N (the input's typical wall). None when the rule has no such clause or ``rms`` is None.
+        N (the input's typical wall). None when the rule has no such clause or ``rms`` is None; no segment
+        is clean when the median is 0 (no scale to compare with).
 
         Args:
             segments: (N, 4) world-frame segments (metres); rms: (N,) each one's fit rms from the
-                extraction (metres; a non-finite value is never clean).
+                extraction (metres; a non-finite or negative value is unknown, never clean).
         """
         if self.clean_rms_ratio is None or rms is None:
             return None
         rms = np.asarray(rms, dtype=float).reshape(-1)
         if len(rms) != len(segments):
             raise ValueError(f"rms has {len(rms)} entries for {len(segments)} segments")
-        known = np.isfinite(rms)
-        if not known.any():
-            return np.zeros(len(rms), dtype=bool)
-        limit = self.clean_rms_ratio * float(np.median(rms[known]))
         with np.errstate(invalid="ignore"):
-            return known & (rms <= limit) & (segment_lengths(segments) >= self.clean_min_length_m)
+            known = np.isfinite(rms) & (rms >= 0)
+        typical = float(np.median(rms[known])) if known.any() else 0.0
+        if typical <= 0:
+            return np.zeros(len(rms), dtype=bool)
+        with np.errstate(invalid="ignore"):
+            return known & (rms <= self.clean_rms_ratio * typical) & (segment_lengths(segments) >= self.clean_min_length_m)
 
     def keep(self, members: np.ndarray, covered: Callable[[], np.ndarray],
              clean_members: np.ndarray | None = None) -> np.ndarray:

@@ -90,9 +90,10 @@ class _Columns:
 
 
 def _read_numeric_csv(path: Path, required: tuple[str, ...], text_columns: tuple[str, ...] = (),
-                      integer_columns: tuple[str, ...] = ()) -> _Columns:
+                      integer_columns: tuple[str, ...] = (), non_negative: tuple[str, ...] = ()) -> _Columns:
     """Read a CSV of numbers (``text_columns`` are skipped; ``integer_columns`` must hold whole numbers that
-    fit an int64); a one-line error naming the file and line for every malformed header or cell.
+    fit an int64; ``non_negative`` columns, when present, no value below 0); a one-line error naming the file
+    and line for every malformed header or cell.
 
     Blank lines (empty or only whitespace) are ignored wherever they are.
     """
@@ -130,6 +131,8 @@ def _read_numeric_csv(path: Path, required: tuple[str, ...], text_columns: tuple
                 raise InputFileError(path, f"column '{header[c]}': not a number: {cell!r}", line=n) from None
             if not math.isfinite(value):
                 raise InputFileError(path, f"column '{header[c]}': {cell.strip()} is not a finite number", line=n)
+            if value < 0 and header[c] in non_negative:
+                raise InputFileError(path, f"column '{header[c]}': {cell.strip()} is negative", line=n)
             data[r, k] = value
         for k, c in enumerate(whole):
             cell = row[c]
@@ -171,7 +174,7 @@ def read_segments_csv(path: str | Path) -> SegmentTable:
     """Read a ``segments.csv``; zero-length rows are skipped and counted (``skipped_zero_length``), and so
     are rows repeating an earlier row's scan and endpoints (``skipped_duplicates``)."""
     path = Path(path)
-    table = _read_numeric_csv(path, SEGMENT_COLUMNS, integer_columns=("scan",))
+    table = _read_numeric_csv(path, SEGMENT_COLUMNS, integer_columns=("scan",), non_negative=("rms",))
     col = {h: table.data[:, k] for k, h in enumerate(table.header)}
     scan = table.integers["scan"]
     segments = np.stack([col[c] for c in ("x1", "y1", "x2", "y2")], axis=1)

@@ -7,7 +7,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from featmap.fusion import FusionConfig, FusionResult, fuse, prepare_method
+from featmap.fusion import FusionConfig, FusionResult, fuse, get_method, prepare_method
 from featmap.io.atomic import atomic_write_text
 from featmap.io.segments_csv import SegmentTable, write_fused_csv
 from featmap.reporting import NullReporter, Reporter
@@ -39,6 +39,11 @@ def warm_up(methods: list[str]) -> float:
 def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig,  # type: ignore[valid-type]
                  reporter: Reporter = NullReporter()) -> list[MethodRun]:
     """Fuse ``table`` with every method in ``methods`` (corner optimisation included), timing each."""
+    if "rms" not in table.extra and len(table):
+        off = [f"fusion.{name}.clean_rms_ratio" for name in methods if _has_clean_clause(name, config)]
+        if off:
+            reporter.warning(f"the segments have no rms column, so no segment counts as a clean view ({', '.join(off)} "
+                             "has nothing to compare): small clusters are kept by count and length only")
     runs = []
     if len(table) < PROGRESS_MIN_SEGMENTS:
         with reporter.progress("fusing", len(methods)) as advance:
@@ -65,6 +70,12 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
             reporter.warning(f"{run.name}: no feature from {len(table)} segments ({run.result.clusters_dropped} "
                              f"clusters dropped); check the fusion.{run.name} settings")
     return runs
+
+
+def _has_clean_clause(name: str, config: FusionConfig) -> bool:  # type: ignore[valid-type]
+    """Whether method ``name``'s support rule keeps small clusters with a clean view (it needs the rms column)."""
+    method = get_method(name)
+    return method.support_rule is not None and method.support_rule(getattr(config, name)).clean_rms_ratio is not None
 
 
 def fuse_and_write(table: SegmentTable, methods: list[str], config, out: str | Path,

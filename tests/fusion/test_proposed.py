@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from featmap.fusion import FusionConfig, fuse
-from featmap.fusion.proposed import ProposedConfig, evaluate_pairs, fuse_proposed
+from featmap.fusion.proposed import ProposedConfig, evaluate_pairs, fuse_proposed, support_rule
 from featmap.geometry import point_segment_distance
 from featmap.simulation.segments import observe_walls
 
@@ -89,6 +89,15 @@ def test_a_lone_view_much_thinner_than_the_typical_wall_is_kept(rms, length, kep
     assert len(fuse("proposed", segs, scan, FusionConfig()).segments) == 1
     paper = FusionConfig.model_validate({"proposed": {"clean_rms_ratio": None}})
     assert len(fuse("proposed", segs, scan, paper, rms=rms_all).segments) == 1
+
+
+@pytest.mark.parametrize("rms, clean", [([0.0, 0.0, 0.0, 0.0], [False] * 4),       # no scale: nothing is clean
+                                        ([0.0, 0.01, 0.01, 0.01], [True, False, False, False]),
+                                        ([-0.01, 0.004, 0.01, 0.01], [False, True, False, False]),
+                                        ([np.nan, 0.004, 0.01, 0.01], [False, True, False, False])])
+def test_clean_views_are_half_as_loose_as_the_median_and_unknown_values_never_clean(rms, clean):
+    segs = np.array([[0.0, 0.0, 2.0, 0.0]] * 4)
+    assert support_rule(ProposedConfig()).clean_views(segs, np.array(rms)).tolist() == clean
 
 
 def test_clean_views_need_one_rms_per_segment():

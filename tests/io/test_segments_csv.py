@@ -39,6 +39,7 @@ def test_fused_round_trip(tmp_path):
     ("scan,x1,y1,x2,y2\n-1e30,1,2,3,4\n", r"s.csv:2: column 'scan': -1e30 is outside the 64-bit integer range"),
     ("scan,x1,y1,x2,y2\n9223372036854775808,1,2,3,4\n", r"s.csv:2: column 'scan': 9223372036854775808 is outside"),
     ("scan,x1,y1,x2,y2\n0,1,2,3,4\n2.5,1,2,3,4\n", r"s.csv:3: column 'scan': not an integer: 2.5"),
+    ("scan,x1,y1,x2,y2,rms\n0,1,2,3,4,0.01\n1,1,2,3,4,-0.02\n", r"s.csv:3: column 'rms': -0.02 is negative"),
 ])
 def test_malformed_segments_name_file_and_line(tmp_path, content, match):
     path = tmp_path / "s.csv"

@@ -47,6 +47,11 @@ def test_fuse_keeps_a_lone_clean_view_by_the_rms_column_of_segments_csv(tmp_path
         assert res.exit_code == 0, res.output
         counts[name] = len(read_fused_csv(tmp_path / name / "fused_proposed.csv")[0])
     assert counts == {"clean": 4, "rough": 3}
+    # without the column the clause has nothing to compare, and the user is told
+    bare = write_segments_csv(tmp_path / "bare.csv", SegmentTable(scan=scan, segments=segs))
+    res = runner.invoke(app, ["fuse", str(bare), "--method", "proposed", "--out", str(tmp_path / "bare")])
+    assert res.exit_code == 0 and "no rms column" in res.output
+    assert len(read_fused_csv(tmp_path / "bare" / "fused_proposed.csv")[0]) == 3
 
 
 def test_fuse_all_methods(tmp_path):
