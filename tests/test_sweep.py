@@ -46,9 +46,12 @@ def test_bad_sweeps_fail_before_anything_runs(tmp_path, case1_run, grid, match):
     assert not (tmp_path / "out").exists()
 
 
-def test_a_missing_base_names_the_sweep_file(tmp_path, case1_run):
-    path = _write(tmp_path, f"base: nosuch\ninput: {case1_run / 'segments.csv'}\ngrid: {{fusion.proposed.gamma: [0.5]}}\n")
-    with pytest.raises(ConfigError, match=rf"^{path}: base: nosuch: no such file, nor a preset \(default, indoor_2d, paper\)$"):
+@pytest.mark.parametrize("base, says", [("nosuch", "no such file, nor a preset \\(default, indoor_2d, paper\\)"),
+                                        ("missing.yaml", "config file not found"),
+                                        ("sub/missing", "config file not found")])
+def test_a_missing_base_names_the_sweep_file(tmp_path, case1_run, base, says):
+    path = _write(tmp_path, f"base: {base}\ninput: {case1_run / 'segments.csv'}\ngrid: {{fusion.proposed.gamma: [0.5]}}\n")
+    with pytest.raises(ConfigError, match=rf"^{path}: base: {base}: {says}$"):
         run_sweep_file(path, tmp_path / "out")
     assert not (tmp_path / "out").exists()
 

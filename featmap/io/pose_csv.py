@@ -9,6 +9,7 @@ Readers raise a one-line :class:`InputFileError` naming the file.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -34,22 +35,41 @@ def corrections_csv_text(frames: list[int], corrections: np.ndarray) -> str:
 
 
 def _read_table(path: Path, kind: str, header: str) -> np.ndarray:
-    """(R, C) the finite numbers of a CSV table (a ``kind`` table) whose first line is ``header``."""
+    """(R, C) the finite numbers of a CSV table (a ``kind`` table) whose first line is ``header``; errors
+    name the file and line."""
     what = f"not a {kind} table {header}"
+    columns = header.count(",") + 1
+    rows = []
     try:
         with open(path, encoding="utf-8") as f:
             first = f.readline().strip()
             if first != header:
                 raise InputFileError(path, f"{what} (its header is {first[:60]!r})", 1)
-            table = np.loadtxt(f, delimiter=",", ndmin=2)     # the rows after the header
+            for line_number, line in enumerate(f, start=2):     # the rows after the header
+                if not line.strip():
+                    continue
+                cells = line.split(",")
+                if len(cells) != columns:
+                    raise InputFileError(path, f"{what} (expected {columns} values, found {len(cells)})", line_number)
+                try:
+                    values = [float(cell) for cell in cells]
+                except ValueError:
+                    bad = next(c.strip() for c in cells if not _is_number(c))
+                    raise InputFileError(path, f"{what} (not a number: {bad[:40]!r})", line_number) from None
+                if not all(math.isfinite(v) for v in values):
+                    raise InputFileError(path, f"{what} (a value that is not a finite number)", line_number)
+                rows.append(values)
     except (OSError, UnicodeDecodeError) as exc:
         raise InputFileError(path, f"{what} ({exc})") from None
-    except ValueError as exc:                   # (numpy's advice on `usecols` is not the user's to follow)
-        raise InputFileError(path, f"{what} ({str(exc).split(';')[0]})") from None
-    columns = header.count(",") + 1
-    if len(table) and (table.shape[1] != columns or not np.isfinite(table).all()):
-        raise InputFileError(path, f"{what} (rows of {table.shape[1]} values, or non-finite values)")
-    return table.reshape(-1, columns)
+    return np.array(rows, dtype=float).reshape(-1, columns)
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
 
 
 def read_trajectory_xy(path: str | Path) -> np.ndarray:
@@ -61,6 +81,6 @@ def read_corrections_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """A run's ``pose_corrections.csv``: frames (F,) and corrections (F, 3) ``dx, dy`` (metres), ``dyaw`` (radians)."""
     table = _read_table(Path(path), "pose-corrections", "frame,dx_m,dy_m,dyaw_deg")
     frames = table[:, 0]
-    if not np.array_equal(frames, np.round(frames)):
-        raise InputFileError(path, "frame numbers that are not whole numbers")
+    if not np.array_equal(frames, np.round(frames)) or (np.abs(frames) >= 2.0**62).any():
+        raise InputFileError(path, "frame numbers that are not whole numbers of a sensible size")
     return frames.astype(np.int64), np.column_stack([table[:, 1:3], np.deg2rad(table[:, 3])])

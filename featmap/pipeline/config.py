@@ -47,8 +47,10 @@ def resolve_config_path(path: str | Path, flag: str = "--config") -> Path:
     """A config file's path: ``path`` itself when it exists, else the preset of that name in ``configs/``
     (``flag``: where the name came from, for the error)."""
     path = Path(path)
-    if path.exists() or path.suffix in (".yaml", ".yml") or len(path.parts) > 1:
+    if path.exists():
         return path
+    if path.suffix in (".yaml", ".yml") or len(path.parts) > 1:
+        raise ConfigError(f"{flag} {path}: config file not found")
     preset = PRESETS_DIR / f"{path.name}.yaml"
     if preset.is_file():
         return preset

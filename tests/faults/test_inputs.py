@@ -175,7 +175,8 @@ def test_figures_of_a_run_with_a_damaged_trajectory(case1_drive, tmp_path):
     run = _fused_run(case1_drive, tmp_path)
     text = (run / "trajectory.csv").read_text()
     (run / "trajectory.csv").write_text(text[:100])                   # cut in the middle of a row
-    one_line_error(cli("figures", run), "trajectory.csv: not a trajectory table")
+    error = one_line_error(cli("figures", run), "not a trajectory table")
+    assert f"trajectory.csv:{text[:100].count(chr(10)) + 1}: " in error          # the line that was cut
 
 
 def test_bad_sweep_files(tmp_path, segments_csv):

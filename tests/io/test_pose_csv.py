@@ -36,8 +36,11 @@ def test_trajectory_round_trip(tmp_path):
 @pytest.mark.parametrize("text, says", [
     ("frame,x,y\n0,1,2\n", "not a pose-corrections table frame,dx_m,dy_m,dyaw_deg (its header is 'frame,x,y')"),
     ("frame,dx_m,dy_m,dyaw_deg\n0,0.1,0.2\n", "not a pose-corrections table frame,dx_m,dy_m,dyaw_deg"),
-    ("frame,dx_m,dy_m,dyaw_deg\n0,0.1,nan,0\n", "non-finite values"),
+    ("frame,dx_m,dy_m,dyaw_deg\n0,0.1,nan,0\n", "pose_corrections.csv:2: not a pose-corrections table frame,dx_m,dy_m,dyaw_deg (a value that is not a finite number)"),
+    ("frame,dx_m,dy_m,dyaw_deg\n0,0,0,0\n\n1,0.1,0.2\n", "pose_corrections.csv:4: not a pose-corrections table frame,dx_m,dy_m,dyaw_deg (expected 4 values, found 3)"),
+    ("frame,dx_m,dy_m,dyaw_deg\n0;0.1,0.2,0.3,0\n", "pose_corrections.csv:2: not a pose-corrections table frame,dx_m,dy_m,dyaw_deg (not a number: '0;0.1')"),
     ("frame,dx_m,dy_m,dyaw_deg\n0.5,0.1,0.2,0\n", "frame numbers that are not whole numbers"),
+    ("frame,dx_m,dy_m,dyaw_deg\n1e30,0.1,0.2,0\n", "frame numbers that are not whole numbers of a sensible size"),
     ("", "not a pose-corrections table frame,dx_m,dy_m,dyaw_deg"),
 ])
 def test_bad_pose_corrections_name_the_file(tmp_path, text, says):
@@ -51,3 +54,10 @@ def test_bad_pose_corrections_name_the_file(tmp_path, text, says):
 def test_a_missing_trajectory_names_the_file(tmp_path):
     with pytest.raises(InputFileError, match="trajectory.csv: not a trajectory table frame,x,y,z,yaw"):
         read_trajectory_xy(tmp_path / "trajectory.csv")
+
+
+def test_a_table_with_only_its_header_is_empty_and_quiet(tmp_path, recwarn):
+    path = tmp_path / "trajectory.csv"
+    path.write_text("frame,x,y,z,yaw\n")
+    assert read_trajectory_xy(path).shape == (0, 2)
+    assert not recwarn.list
