@@ -51,25 +51,18 @@ def _read_table(path: Path, kind: str, header: str) -> np.ndarray:
                 cells = line.split(",")
                 if len(cells) != columns:
                     raise InputFileError(path, f"{what} (expected {columns} values, found {len(cells)})", line_number)
-                try:
-                    values = [float(cell) for cell in cells]
-                except ValueError:
-                    bad = next(c.strip() for c in cells if not _is_number(c))
-                    raise InputFileError(path, f"{what} (not a number: {bad[:40]!r})", line_number) from None
+                values = []
+                for cell in cells:
+                    try:
+                        values.append(float(cell))
+                    except ValueError:
+                        raise InputFileError(path, f"{what} (not a number: {cell.strip()[:40]!r})", line_number) from None
                 if not all(math.isfinite(v) for v in values):
                     raise InputFileError(path, f"{what} (a value that is not a finite number)", line_number)
                 rows.append(values)
     except (OSError, UnicodeDecodeError) as exc:
         raise InputFileError(path, f"{what} ({exc})") from None
     return np.array(rows, dtype=float).reshape(-1, columns)
-
-
-def _is_number(cell: str) -> bool:
-    try:
-        float(cell)
-    except ValueError:
-        return False
-    return True
 
 
 def read_trajectory_xy(path: str | Path) -> np.ndarray:

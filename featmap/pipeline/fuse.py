@@ -39,7 +39,8 @@ def warm_up(methods: list[str]) -> float:
 def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig,  # type: ignore[valid-type]
                  reporter: Reporter = NullReporter()) -> list[MethodRun]:
     """Fuse ``table`` with every method in ``methods`` (corner optimisation included), timing each."""
-    if "rms" not in table.extra and len(table):
+    rms = table.extra.get("rms")
+    if rms is None and len(table):
         off = [f"fusion.{name}.clean_rms_ratio" for name in methods if _has_clean_clause(name, config)]
         if off:
             reporter.warning(f"the segments have no rms column, so no segment counts as a clean view ({', '.join(off)} "
@@ -49,7 +50,7 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
         with reporter.progress("fusing", len(methods)) as advance:
             for name in methods:
                 start = time.perf_counter()
-                result = fuse(name, table.segments, table.scan, config, rms=table.extra.get("rms"))
+                result = fuse(name, table.segments, table.scan, config, rms=rms)
                 runs.append(MethodRun(name, result, time.perf_counter() - start))
                 advance(1)
     else:
@@ -63,7 +64,7 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
                     shown[0] = percent
 
                 start = time.perf_counter()
-                result = fuse(name, table.segments, table.scan, config, progress, rms=table.extra.get("rms"))
+                result = fuse(name, table.segments, table.scan, config, progress, rms=rms)
                 runs.append(MethodRun(name, result, time.perf_counter() - start))
     for run in runs:
         if len(run.result) == 0 and len(table) > 0:
