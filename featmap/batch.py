@@ -690,6 +690,8 @@ def drive_points(run_dir: str | Path, cache_dir: str | Path) -> np.ndarray | Non
 
     run_dir = Path(run_dir)
     source = read_drive_key(run_dir / KEY_FILE).source
+    if not isinstance(source.get("kind"), str) or not isinstance(source.get("location"), str):
+        raise InputFileError(run_dir / KEY_FILE, "its source has no kind or location (run the batch again to rewrite it)")
     # The key holds where the scans were read (a simulated drive: the KITTI raw drive it was written as).
     kind = "kitti_raw" if source["kind"] == "simulated" else source["kind"]
     spec = SourceSpec(kind, source["location"], source.get("frames"), bool(source.get("skip_bad_scans")))

@@ -457,6 +457,14 @@ def test_a_merged_map_without_truth_is_scored_against_the_drives_scan_points(fir
     record = merge_again()
     assert record.scores == {} and record.counts["proposed"] == merged.counts["proposed"]
     assert record.unscored.startswith("not scored: ") and "room_b/pose_corrections.csv" in record.unscored
+    key = tmp_path / "out" / "room_b" / "batch.json"              # a hand-edited key: written, not scored
+    original = key.read_text()
+    edited = json.loads(original)
+    del edited["source"]["kind"]
+    key.write_text(json.dumps(edited))
+    record = merge_again()
+    assert record.scores == {} and "room_b/batch.json: its source has no kind or location" in record.unscored
+    key.write_text(original)
     log.rename(tmp_path / "moved.log")                     # the scans are gone: written, not scored
     record = merge_again()
     assert record.scores == {} and "room.log" in record.unscored
