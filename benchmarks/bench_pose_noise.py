@@ -62,6 +62,7 @@ from featmap.evaluation import load_simulator_truth, truth_metrics
 from featmap.evaluation.map_metric import truth_free_metrics
 from featmap.fusion import fuse
 from featmap.fusion.registry import resolve_methods
+from featmap.geometry import rigid_motion_2d
 from featmap.io.carmen import read_relations
 from featmap.pipeline import SegmentStore, load_config
 from featmap.pipeline.executor import local_executor
@@ -95,13 +96,9 @@ def drifted(extraction: Extraction, level: tuple[float, float], seed: list[int],
 def rigid_fit(poses: np.ndarray, target: np.ndarray) -> np.ndarray:
     """(4, 4) the planar rigid motion C minimising the distance of the positions of ``C @ poses`` to those of
     ``target`` (both (F, 4, 4))."""
-    a, b = poses[:, :2, 3], target[:, :2, 3]
-    ca, cb = a.mean(axis=0), b.mean(axis=0)
-    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
-    d = np.diag([1.0, np.sign(np.linalg.det(vt.T @ u.T))])
-    rot = vt.T @ d @ u.T
+    rot, shift = rigid_motion_2d(poses[:, :2, 3], target[:, :2, 3])
     C = np.eye(4)
-    C[:2, :2], C[:2, 3] = rot, cb - rot @ ca
+    C[:2, :2], C[:2, 3] = rot, shift
     return C
 
 

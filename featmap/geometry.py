@@ -136,3 +136,19 @@ def line_intersection(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.nda
     diff = p2 - p1
     s = (diff[0] * d2[1] - diff[1] * d2[0]) / cross
     return p1 + s * d1
+
+
+def rigid_motion_2d(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The planar rigid motion that best maps ``source`` (K, 2) onto ``target`` (K, 2) in least squares
+    (Kabsch): ``(R (2, 2), t (2,))`` with ``target ~ source @ R.T + t``."""
+    source, target = np.asarray(source, float), np.asarray(target, float)
+    cs, ct = source.mean(axis=0), target.mean(axis=0)
+    u, _, vt = np.linalg.svd((source - cs).T @ (target - ct))
+    rot = vt.T @ np.diag([1.0, np.sign(np.linalg.det(vt.T @ u.T))]) @ u.T
+    return rot, ct - rot @ cs
+
+
+def move_segments_2d(segments: np.ndarray, rot: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """(M, 4) ``segments`` moved by the planar rigid motion ``x -> rot @ x + shift``."""
+    segments = as_segments(segments)
+    return np.column_stack([segments[:, :2] @ rot.T + shift, segments[:, 2:] @ rot.T + shift])

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from featmap.geometry import (circle_overlap_area, fit_line_tls, included_angle, line_coefficients,
-                              point_segment_distance, segment_orientations)
+from featmap.geometry import (circle_overlap_area, fit_line_tls, included_angle, line_coefficients, move_segments_2d,
+                              point_segment_distance, rigid_motion_2d, segment_orientations)
 
 
 def test_equal_circles_at_distance_r():
@@ -70,3 +70,15 @@ def test_tls_fits_vertical_line():
     c, d = fit_line_tls(pts)
     assert c[0] == pytest.approx(3.0)
     assert abs(d[0]) < 1e-12 and abs(abs(d[1]) - 1) < 1e-12
+
+
+def test_rigid_motion_2d_recovers_a_known_motion_and_moves_segments_with_it():
+    rng = np.random.default_rng(2)
+    source = rng.uniform(-50, 50, (30, 2))
+    angle, shift = np.deg2rad(17.0), np.array([3.0, -4.5])
+    rot = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    got_rot, got_shift = rigid_motion_2d(source, source @ rot.T + shift)
+    assert np.allclose(got_rot, rot) and np.allclose(got_shift, shift)
+    segments = np.column_stack([source[:15], source[15:]])
+    assert np.allclose(move_segments_2d(segments, rot, shift),
+                       np.column_stack([source[:15] @ rot.T + shift, source[15:] @ rot.T + shift]))
