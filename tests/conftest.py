@@ -47,21 +47,18 @@ def write_room_log(path: Path, rng, n_scans: int = 60) -> Path:
     """A CARMEN log of a robot driving a loop around the pillar (1 cm range noise, exact poses)."""
     import numpy as np
 
-    from featmap.io.carmen import carmen_beam_angles
+    from featmap.io.carmen import carmen_beam_angles, flaser_log_text
     from featmap.simulation.segments import cast_rays_2d
 
     angles = carmen_beam_angles(180)
-    lines = ["# synthetic", "PARAM robot_frontlaser_offset 0.0 nohost 0"]
-    for k in range(n_scans):
-        phi = 2 * np.pi * k / n_scans
-        pose = np.array([6.5 + 4.0 * np.cos(phi), 3.5 + 2.2 * np.sin(phi), phi + np.pi / 2])
+    phi = 2 * np.pi * np.arange(n_scans) / n_scans
+    poses = np.column_stack([6.5 + 4.0 * np.cos(phi), 3.5 + 2.2 * np.sin(phi), phi + np.pi / 2])
+    ranges = []
+    for pose in poses:
         r = cast_rays_2d(np.array(ROOM_WITH_PILLAR, float), pose, angles, max_range=81.83)
-        r = np.where(r < 81.83, r + rng.normal(0, 0.01, len(r)), r)
-        fields = " ".join(f"{v:.3f}" for v in r)
-        p = " ".join(f"{v:.6f}" for v in pose)
-        lines.append(f"FLASER 180 {fields} {p} {p} {k * 0.2:.3f} host {k * 0.2:.3f}")
-        lines.append(f"ODOM {p} 0 0 0 {k * 0.2:.3f} host {k * 0.2:.3f}")
-    path.write_text("\n".join(lines) + "\n")
+        ranges.append(np.where(r < 81.83, r + rng.normal(0, 0.01, len(r)), r))
+    text = flaser_log_text(np.array(ranges), poses, 0.2 * np.arange(n_scans), odometry=poses, comment="synthetic")
+    path.write_text("PARAM robot_frontlaser_offset 0.0 nohost 0\n" + text)
     return path
 
 

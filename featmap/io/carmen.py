@@ -129,6 +129,29 @@ def carmen_beam_angles(n_beams: int) -> np.ndarray:
     return -0.5 * math.pi + step * np.arange(n_beams)
 
 
+def flaser_log_text(ranges: np.ndarray, poses: np.ndarray, stamps: np.ndarray, odometry: np.ndarray | None = None,
+                    comment: str = "") -> str:
+    """A CARMEN log (what :func:`read_carmen` reads) of FLASER records, each followed by an ODOM record.
+
+    Args:
+        ranges: (S, n) metres per beam (beam ``k`` at :func:`carmen_beam_angles`); a no-return is the
+            largest value, written for every beam that hit nothing.
+        poses: (S, 3) ``x, y, theta`` of the laser in the log's frame (metres, radians).
+        stamps: (S,) seconds.
+        odometry: (S, 3) the odometry pose of each scan (FLASER's second pose and the ODOM record), or None
+            for zeros (as in the Radish "corrected" logs).
+        comment: written as ``#`` lines at the top.
+    """
+    poses = np.asarray(poses, float)
+    odometry = np.zeros_like(poses) if odometry is None else np.asarray(odometry, float)
+    lines = [f"# {line}" for line in comment.splitlines()]
+    for r, pose, odom, t in zip(np.asarray(ranges, float), poses, odometry, np.asarray(stamps, float)):
+        laser, wheels = " ".join(f"{v:.6f}" for v in pose), " ".join(f"{v:.6f}" for v in odom)
+        lines.append(f"FLASER {len(r)} {' '.join(f'{v:.3f}' for v in r)} {laser} {wheels} {t:.3f} sim {t:.3f}")
+        lines.append(f"ODOM {wheels} 0 0 0 {t:.3f} sim {t:.3f}")
+    return "\n".join(lines) + "\n"
+
+
 def _open_text(path: Path):
     """Open ``path`` for text reading, decompressing gzip or bz2 by their magic bytes."""
     with open(path, "rb") as fh:
