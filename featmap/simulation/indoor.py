@@ -2,7 +2,7 @@
 
 A floor is a ring corridor (1.8-3 m wide) around an inner block, lined on both sides by rooms of 3-6 m
 with doors (0.8-1.2 m; a few rooms closed), cabinets standing 2-10 cm before some rooms' back walls, and
-on one floor in two a round hall (a half circle of 3-5 m radius drawn as 2-degree chords) opening off
+on about one floor in two a round hall (a circle of 3-5 m radius drawn as 2-degree chords) opening off
 one end of the corridor. The robot drives the corridor's centre line twice around, with a scan every
 0.25-0.5 m, and its SICK-like laser (180 or 361 beams over 180 degrees, 1-2 cm range noise, no return
 beyond 81.83 m) sees into the rooms through their doors. The log's poses carry 1.5 cm / 0.2 deg of
