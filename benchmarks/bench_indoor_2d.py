@@ -94,6 +94,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cache-dir", type=Path, default=ROOT / "data" / "cache")
     parser.add_argument("--docs", action="store_true", help="write the tables into docs/simulated_2d.md")
     args = parser.parse_args(argv)
+    if any(seed < 0 for seed in args.seeds):
+        parser.error("--seeds: a floor's seed is a non-negative integer")
     console = Console()
     methods = resolve_methods(args.methods)
     store = SegmentStore(args.cache_dir)
