@@ -62,7 +62,7 @@ from featmap.evaluation import load_simulator_truth, truth_metrics
 from featmap.evaluation.map_metric import truth_free_metrics
 from featmap.fusion import fuse
 from featmap.fusion.registry import resolve_methods
-from featmap.geometry import rigid_motion_2d
+from featmap.geometry import move_segments_2d, rigid_motion_2d
 from featmap.io.carmen import read_relations
 from featmap.pipeline import SegmentStore, load_config
 from featmap.pipeline.executor import local_executor
@@ -113,7 +113,7 @@ def align_to_truth(segments: np.ndarray, walls: np.ndarray, iterations: int = 12
         return C
     scan = np.r_[np.zeros(len(segments), int), np.ones(len(walls), int)]
     for gate in np.geomspace(1.0, 0.2, iterations):
-        cur = np.column_stack([segments[:, :2] @ C[:2, :2].T + C[:2, 3], segments[:, 2:] @ C[:2, :2].T + C[:2, 3]])
+        cur = move_segments_2d(segments, C[:2, :2], C[:2, 3])
         centre = cur.reshape(-1, 2).mean(axis=0)
         m = segment_matches(np.concatenate([cur, walls]), scan, np.array([[0, 1]]), gate, 10.0, 0.3, 0.5)
         own = m.source == 0

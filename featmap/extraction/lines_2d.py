@@ -29,6 +29,7 @@ from pydantic import Field
 
 from featmap.config import Section
 from featmap.extraction.base import Extractor, ScanSegments
+from featmap.geometry import move_segments_2d
 
 
 class Lines2DConfig(Section):
@@ -218,10 +219,7 @@ def extract_lines(points, config: Lines2DConfig = Lines2DConfig()) -> ScanLines:
 def lines_to_world(segments: np.ndarray, pose: np.ndarray) -> np.ndarray:
     """Move (K, 4) sensor-frame segments to the world frame with the sensor pose ``x, y, theta`` (3,)."""
     c, s = np.cos(pose[2]), np.sin(pose[2])
-    rot = np.array([[c, -s], [s, c]])
-    a = segments[:, :2] @ rot.T + pose[:2]
-    b = segments[:, 2:] @ rot.T + pose[:2]
-    return np.concatenate([a, b], axis=1)
+    return move_segments_2d(segments, np.array([[c, -s], [s, c]]), pose[:2])
 
 
 def extract_lines_2d(points, config: Lines2DConfig = Lines2DConfig()) -> ScanSegments:
