@@ -138,8 +138,9 @@ def trajectory_error(poses: np.ndarray, reference: np.ndarray) -> tuple[float, f
 
 
 def refined(extraction: Extraction, poses: np.ndarray, config):
-    """(refined poses, RefinementRun) of the extraction's scans placed with ``poses``."""
-    run = refine_extraction(replace(extraction, poses=poses), config.refinement)
+    """(refined poses, RefinementRun) of the extraction's scans placed with ``poses`` (drifted or raw
+    odometry poses here: never taken as a SLAM result, whatever log they came from)."""
+    run = refine_extraction(replace(extraction, poses=poses, slam_poses=False), config.refinement)
     return run.poses, run
 
 
@@ -338,6 +339,8 @@ def run_raw(args, config2d, methods, executor, console) -> list[dict]:
 
 class DriftedSource:
     """A scan source whose poses are replaced (the timing runs): everything else is the wrapped source's."""
+
+    slam_poses = False
 
     def __init__(self, source, poses: np.ndarray):
         self._source, self._poses = source, poses

@@ -63,6 +63,8 @@ class ScanSource(Protocol):
         geo_origin: WGS84 of the local frame's origin, or None (indoor logs).
         frames: frame numbers of the selected scans, in order.
         notes: skipped frames and flags found while opening it.
+        slam_poses: its poses are a SLAM result, consistent to centimetres (a CARMEN ``*-corrected`` log),
+            not odometry or GPS/INS: pose refinement then holds the map near them.
     """
 
     kind: str
@@ -72,6 +74,7 @@ class ScanSource(Protocol):
     geo_origin: GeoFrame | None
     frames: list[int]
     notes: SourceNotes
+    slam_poses: bool
 
     def __len__(self) -> int: ...
 
@@ -87,6 +90,7 @@ class FrameSource:
     ``pose(frame)`` for one frame number, and gets the sequence and ``poses()`` from here."""
 
     frames: list[int]
+    slam_poses: bool = False
 
     def scan(self, frame: int) -> Scan:
         raise NotImplementedError

@@ -3,7 +3,10 @@
 ``CarmenSource("intel-corrected.log.gz")`` reads the log (:mod:`featmap.io.carmen`) and yields each
 scan's valid returns in the laser frame, in beam order, with the record's first pose (the SLAM-corrected
 one in the ``*-corrected`` logs, raw odometry in raw ``.clf`` logs) as ``T_world_sensor``. Coordinates
-stay in the log's own frame (no geo origin, so a run writes no WGS84 output).
+stay in the log's own frame (no geo origin, so a run writes no WGS84 output). A log whose scan poses
+are not its odometry (the ``*-corrected`` logs, :attr:`~featmap.io.carmen.CarmenLog.poses_replaced`)
+declares them a SLAM result (``slam_poses``), so pose
+refinement holds the map near them (``refinement.pose_graph.slam_absolute_sigma_*``).
 """
 
 from __future__ import annotations
@@ -53,6 +56,7 @@ class CarmenSource(FrameSource):
         self.location = Path(path).resolve()
         self.frames = select_frames(len(self.log), frames, self.name)
         self.notes = SourceNotes()
+        self.slam_poses = self.log.poses_replaced
         self._t0 = float(self.log.timestamp[0]) if len(self.log) else 0.0
 
     def scan(self, frame: int) -> Scan:

@@ -41,6 +41,10 @@ from featmap.errors import InputFileError
 NO_RETURN_MARGIN_M = 0.1
 """Readings within this of a FLASER log's maximum range are no-returns (51.05 and 51.1 m in fhw)."""
 
+REPLACED_POSE_M = 0.3
+"""A log's scan poses are taken as replaced (a SLAM result) when they lie farther than this from the
+log's ODOM records on median (:attr:`CarmenLog.poses_replaced`)."""
+
 _MESSAGE_TYPE = re.compile(r"[A-Z][A-Z0-9_]*\Z")
 _FLASER = "FLASER"
 _ROBOTLASER = "ROBOTLASER1"
@@ -94,6 +98,24 @@ class CarmenLog:
 
     def __len__(self) -> int:
         return len(self.ranges)
+
+    @property
+    def poses_replaced(self) -> bool:
+        """Whether the scans' poses are not the log's own odometry: the pose of a scan and the ODOM record
+        nearest to it in time are more than ``REPLACED_POSE_M`` apart on median. Radish's ``*-corrected``
+        logs replace the scan poses by a SLAM result and keep (or zero) the raw ODOM records (7-15 m apart
+        on median); in raw logs both are the odometry (3-4 cm apart). False for a log without ODOM records."""
+        if not len(self) or not len(self.odom_pose):
+            return False
+        after = np.searchsorted(self.odom_timestamp, self.timestamp).clip(1, max(len(self.odom_timestamp) - 1, 1))
+        before = after - 1
+        if len(self.odom_timestamp) > 1:
+            later = np.abs(self.odom_timestamp[after] - self.timestamp) < np.abs(self.odom_timestamp[before] - self.timestamp)
+            nearest = np.where(later, after, before)
+        else:
+            nearest = np.zeros(len(self), np.int64)
+        apart = np.hypot(*(self.odom_pose[nearest, :2] - self.pose[:, :2]).T)
+        return bool(np.median(apart) > REPLACED_POSE_M)
 
     def points(self, scan: int) -> np.ndarray:
         """(k, 2) valid returns of one scan in the laser frame, in beam order."""

@@ -82,6 +82,7 @@ class RefinementRecord(_Model):
     residual_before_mm: Optional[float] = Field(None, description="mean distance between matched segments of different scans, source poses")
     residual_after_mm: Optional[float] = Field(None, description="the same after refinement")
     loops: Optional[int] = Field(None, description="loop closures found by the wide search (None: search off)")
+    slam_poses: bool = Field(False, description="the source's poses were taken as a SLAM result (held near them by the slam_absolute_* prior where set)")
 
 
 class RunMetrics(_Model):

@@ -37,6 +37,7 @@ class Extraction:
         skipped: frame -> reason, for unreadable scans left out (``skip_bad_scans``).
         seconds: wall-clock time of the whole extraction; scan_seconds: per extracted scan.
         discarded: cache entries found corrupt and re-made.
+        slam_poses: the source's poses are a SLAM result (:attr:`featmap.datasets.base.ScanSource.slam_poses`).
     """
 
     frames: list[int]
@@ -50,6 +51,7 @@ class Extraction:
     scan_seconds: list[float] = field(default_factory=list)
     discarded: list[str] = field(default_factory=list)
     timestamps: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    slam_poses: bool = False
 
     def world_table(self, poses: np.ndarray | None = None) -> SegmentTable:
         """Every segment in the world frame with its scan (frame number) and per-segment columns.
@@ -99,7 +101,8 @@ def extract_source(source: ScanSource, config: ExtractionConfig, store: SegmentS
     section = getattr(config, extractor.name)
     results: dict[int, ScanSegments] = {}
     stamps: dict[int, float] = {}
-    out = Extraction(frames=[], scans=[], poses=np.zeros((0, 4, 4)), dimension=source.dimension)
+    out = Extraction(frames=[], scans=[], poses=np.zeros((0, 4, 4)), dimension=source.dimension,
+                     slam_poses=bool(source.slam_poses))
     start = time.perf_counter()
     with reporter.progress(f"extracting {source.name}", len(source)) as advance:
         def uncached():

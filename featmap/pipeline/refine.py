@@ -21,6 +21,8 @@ class RefinementRun:
         source_poses: (F, 4, 4) ``T_world_sensor`` as the source gave them.
         result: the method's result (refined poses, per-scan corrections).
         seconds: wall-clock time of the refinement.
+        slam_poses: the source's poses were taken as a SLAM result (held near them by the method's
+            ``slam_absolute_*`` prior where set).
     """
 
     method: str
@@ -28,6 +30,7 @@ class RefinementRun:
     source_poses: np.ndarray
     result: RefinementResult
     seconds: float
+    slam_poses: bool = False
 
     @property
     def poses(self) -> np.ndarray:
@@ -42,6 +45,7 @@ def refine_extraction(extraction: Extraction, config: RefinementConfig) -> Refin
     position = {frame: i for i, frame in enumerate(extraction.frames)}
     scan = np.fromiter((position[s] for s in table.scan), dtype=np.int64, count=len(table))
     stamps = extraction.timestamps if len(extraction.timestamps) == len(extraction.frames) else None
-    inp = RefinementInput(table.segments, scan, extraction.poses, stamps)
+    inp = RefinementInput(table.segments, scan, extraction.poses, stamps, slam_poses=extraction.slam_poses)
     result = refine(inp, config)
-    return RefinementRun(config.method, list(extraction.frames), extraction.poses, result, time.perf_counter() - start)
+    return RefinementRun(config.method, list(extraction.frames), extraction.poses, result, time.perf_counter() - start,
+                         extraction.slam_poses)

@@ -176,7 +176,7 @@ def refinement_record(run: RefinementRun) -> RefinementRecord:
                             rotation_max_deg=round(float(turned.max()), 4) if len(turned) else 0.0,
                             residual_before_mm=rounded(stats.get("residual_before_mm"), 3),
                             residual_after_mm=rounded(stats.get("residual_after_mm"), 3),
-                            loops=stats.get("loops"))
+                            loops=stats.get("loops"), slam_poses=run.slam_poses)
 
 
 def _median(values: list[float]) -> float | None:
@@ -197,6 +197,7 @@ def report_refinement(record: RefinementRecord | None, reporter: Reporter) -> No
     agree = (f"mean mismatch between scans {record.residual_before_mm:.1f} -> {record.residual_after_mm:.1f} mm"
              if record.residual_before_mm is not None and record.residual_after_mm is not None else "no segments matched")
     loops = f", {record.loops} loop(s) closed" if record.loops else ""
+    loops += ", the source's poses taken as a SLAM result" if record.slam_poses else ""
     if record.applied:
         reporter.info(f"pose refinement ({record.method}): moved {record.scans} scans by {100 * record.correction_mean_m:.1f} cm "
                       f"and {record.rotation_mean_deg:.2f} deg on average (max {100 * record.correction_max_m:.1f} cm, "

@@ -30,12 +30,15 @@ class RefinementInput:
         scan: (N,) position of each segment's scan in ``poses`` (0..F-1, not the frame number).
         poses: (F, 4, 4) input ``T_world_sensor`` of the scans, in time order.
         timestamps: (F,) seconds of each scan (None: the scans are taken as 1 s apart).
+        slam_poses: the poses are a SLAM result (consistent to centimetres), not odometry or GPS/INS:
+            the methods then use their ``slam_absolute_*`` priors where set.
     """
 
     segments: np.ndarray
     scan: np.ndarray
     poses: np.ndarray
     timestamps: np.ndarray | None = None
+    slam_poses: bool = False
 
     def __post_init__(self) -> None:
         seg = np.asarray(self.segments, float).reshape(-1, 4)

@@ -18,6 +18,7 @@ from featmap.errors import ConfigError
 from featmap.refinement import pose_graph, scan_to_map
 from featmap.refinement.base import RefinementInput, RefinementMethod, RefinementResult
 from featmap.refinement.drives import DriveAlignmentConfig
+from featmap.refinement.terms import AlignmentConfig, with_slam_prior
 
 
 def _keep_poses(inp: RefinementInput, config: object = None) -> RefinementResult:
@@ -46,7 +47,10 @@ def get_refinement(name: str) -> RefinementMethod:
 
 
 def refine(inp: RefinementInput, config: RefinementConfig = RefinementConfig()) -> RefinementResult:  # type: ignore[valid-type]
-    """Refine the poses of ``inp`` with the method ``config.method`` and its section of ``config``."""
+    """Refine the poses of ``inp`` with the method ``config.method`` and its section of ``config``
+    (with its ``slam_absolute_*`` priors when ``inp.slam_poses``)."""
     method = get_refinement(config.method)
     section = getattr(config, method.name) if method.config_type is not None else None
+    if isinstance(section, AlignmentConfig):
+        section = with_slam_prior(section, inp.slam_poses)
     return method.refine(inp, section)

@@ -9,7 +9,10 @@ Unknowns: one correction ``c_i = (dx, dy, dyaw)`` per scan (:mod:`featmap.refine
   objects and clutter count little;
 - **absolute prior** (GPS/INS): each correction itself, with standard deviations ``absolute_sigma_m`` and
   ``absolute_sigma_deg``: the map stays where the input poses put it on average. ``null`` turns it off
-  (odometry: then the first scan is held fixed);
+  (odometry: then the first scan is held fixed). When the input poses are a SLAM result
+  (``RefinementInput.slam_poses``, e.g. a CARMEN ``*-corrected`` log), ``slam_absolute_sigma_m`` and
+  ``slam_absolute_sigma_deg`` replace them where set (:func:`with_slam_prior`): such poses are already
+  consistent to centimetres, so the map should stay where they put it;
 - **motion prior**: the relative pose of consecutive scans stays what the input poses say. Its variance
   adds up along the way, like the error of the source of the poses: per second (GPS/INS drift,
   ``motion_sigma_m`` / ``motion_sigma_deg`` per sqrt(s)), per metre travelled and per degree turned
@@ -62,6 +65,8 @@ class AlignmentConfig(Section):
     robust_gate_fraction: float = Field(0.0, ge=0, description="... at least this fraction of the round's gate (wider kernels while the gates are wide)")
     absolute_sigma_m: Optional[float] = Field(0.5, gt=0, description="absolute (GPS/INS) position prior per scan; null = odometry poses, no absolute prior")
     absolute_sigma_deg: Optional[float] = Field(1.0, gt=0, description="absolute heading prior per scan; null = none")
+    slam_absolute_sigma_m: Optional[float] = Field(None, gt=0, description="position prior instead of absolute_sigma_m when the source's poses are a SLAM result (a CARMEN *-corrected log); null = absolute_sigma_m")
+    slam_absolute_sigma_deg: Optional[float] = Field(None, gt=0, description="heading prior instead of absolute_sigma_deg for such poses; null = absolute_sigma_deg")
     motion_sigma_m: float = Field(0.2, ge=0, description="relative motion prior between consecutive scans: metres per sqrt(second) (GPS/INS drift)")
     motion_sigma_deg: float = Field(0.3, ge=0, description="relative heading prior: degrees per sqrt(second)")
     motion_sigma_m_per_sqrt_m: float = Field(0.0, ge=0, description="relative motion prior: metres per sqrt(metre travelled) (odometry)")
@@ -71,6 +76,17 @@ class AlignmentConfig(Section):
     motion_floor_deg: float = Field(0.01, gt=0, description="relative heading prior never tighter than this (degrees)")
     min_improvement: float = Field(1.5, ge=1, description="keep the input poses unless the mean distance between matched segments of different scans shrinks by at least this factor ...")
     min_correction_m: float = Field(0.03, ge=0, description="... and some scan moves by at least this (a point 10 m from its sensor)")
+
+
+def with_slam_prior(config: AlignmentConfig, slam_poses: bool) -> AlignmentConfig:
+    """``config`` with the ``slam_absolute_*`` priors as its absolute priors when the input poses are a
+    SLAM result (``slam_poses``) and those are set; otherwise ``config`` itself."""
+    if not slam_poses:
+        return config
+    update = {name: value for name, value in (("absolute_sigma_m", config.slam_absolute_sigma_m),
+                                               ("absolute_sigma_deg", config.slam_absolute_sigma_deg))
+              if value is not None}
+    return config.model_copy(update=update) if update else config
 
 
 def _perp(v: np.ndarray) -> np.ndarray:

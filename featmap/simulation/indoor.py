@@ -9,7 +9,9 @@ beyond 81.83 m) sees into the rooms through their doors. The log's poses carry 1
 independent error per scan, as a SLAM-corrected log would.
 
 Seeds are held out: :data:`INDOOR_SEEDS` were run only to report how the indoor defaults generalise
-(``benchmarks/bench_indoor_2d.py``); nothing was tuned on them. Everything here is deterministic in the
+(``benchmarks/bench_indoor_2d.py``); nothing was tuned on them. :data:`INDOOR_TUNING_SEEDS` chose the
+strength of the pose prior for SLAM-corrected logs, some with :func:`drifting_poses` (SLAM poses that are
+locally off by centimetres). Everything here is deterministic in the
 seed and does no I/O (:func:`featmap.io.carmen.flaser_log_text` writes the log).
 """
 
@@ -24,6 +26,8 @@ from featmap.simulation.segments import cast_rays_2d
 
 INDOOR_SEEDS: tuple[int, ...] = (9001, 9002, 9003, 9004, 9005, 9006)
 """Floors never used to tune anything: run only to report."""
+INDOOR_TUNING_SEEDS: tuple[int, ...] = (8101, 8102, 8103, 8104, 8105, 8106)
+"""Floors the indoor preset's SLAM pose prior was chosen on (``bench_indoor_2d.py --prior-sweep``)."""
 NO_RETURN_M = 81.83
 """The range a beam that hits nothing reports (as in the Radish intel log)."""
 
@@ -150,3 +154,12 @@ def generate_indoor(seed: int) -> IndoorDrive:
     description = (f"floor {length:.0f} x {height:.0f} m, corridor {corridor:.1f} m, {'a round hall, ' if hall else ''}"
                    f"{len(poses)} scans of {beams} beams, {100 * noise:.1f} cm noise")
     return IndoorDrive(seed, surfaces, poses, logged, ranges, stamps, description)
+
+
+def drifting_poses(drive: IndoorDrive, seed: int) -> np.ndarray:
+    """(K, 3) poses of ``drive`` as a SLAM result that is locally off: the true poses plus a slowly
+    varying error (a random walk over the scans, centred and scaled to 5 cm / 0.5 deg rms per axis) plus
+    half of the log's per-scan error. Deterministic in ``seed``."""
+    walk = np.cumsum(np.random.default_rng(seed).normal(0.0, 1.0, drive.poses.shape), axis=0)
+    walk = (walk - walk.mean(axis=0)) / walk.std(axis=0)
+    return drive.poses + walk * np.array([0.05, 0.05, np.deg2rad(0.5)]) + 0.5 * (drive.logged - drive.poses)

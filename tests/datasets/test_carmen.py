@@ -45,3 +45,28 @@ def test_the_shipped_intel_log():
     path = shared_data("carmen_2d", "intel-corrected.log.gz")
     source = CarmenSource(path, "0:100")
     assert len(source) == 100 and 100 < len(source[0].points) <= 180
+
+
+def test_scan_poses_that_are_not_the_odometry_are_a_slam_result(tmp_path):
+    """A log whose scan poses follow its ODOM records is odometry; one whose ODOM records are elsewhere
+    (zeros, or the raw odometry beside replaced poses) declares its poses a SLAM result; no ODOM: not."""
+    from featmap.io.carmen import flaser_log_text
+
+    poses = np.column_stack([np.linspace(1.0, 6.0, 6), np.full(6, 2.0), np.zeros(6)])
+    ranges, stamps = np.full((6, 180), 3.0), np.arange(6) * 0.5
+    cases = {"odometry": (poses + 0.01, False), "zeroed": (None, True), "replaced": (poses + [0.5, 0.4, 0.0], True)}
+    for name, (odometry, slam) in cases.items():
+        path = tmp_path / f"{name}.log"
+        path.write_text(flaser_log_text(ranges, poses, stamps, odometry))
+        assert CarmenSource(path).slam_poses is slam, name
+    bare = tmp_path / "bare.log"
+    bare.write_text("\n".join(line for line in flaser_log_text(ranges, poses, stamps).splitlines()
+                              if not line.startswith("ODOM")) + "\n")
+    assert CarmenSource(bare).slam_poses is False
+
+
+@pytest.mark.parametrize("path, slam", [(("carmen_2d", "intel-corrected.log.gz"), True),
+                                        (("carmen_2d", "fhw-corrected.log.gz"), True),
+                                        (("carmen_2d_raw", "aces.clf.bz2"), False)])
+def test_the_shipped_logs_say_what_their_poses_are(path, slam):
+    assert CarmenSource(shared_data(*path)).slam_poses is slam

@@ -111,3 +111,40 @@ def test_scans_without_segments_at_the_end_are_refined_with_the_rest(hall, name)
     assert inp.scan.max() < inp.n_scans - 3
     result = refine(inp, RefinementConfig(method=name))
     assert result.poses.shape == inp.poses.shape and np.isfinite(result.poses).all()
+
+
+def test_slam_poses_hold_the_map_where_the_input_put_it(hall):
+    """The first of 24 scans is 0.25 m / 2 deg off, the rest are exact. In odometry mode (no absolute
+    prior) the first scan is held and the whole map follows it; when the input says its poses are a SLAM
+    result, the ``slam_absolute_*`` prior holds the map where the 23 good scans put it (within 2.5 cm: it
+    moves by about 1/24 of the error, as every scan's prior pulls it) and the first scan comes back within
+    2 cm. Without ``slam_poses`` that prior does nothing."""
+    from dataclasses import replace
+
+    poses, scans = hall
+    given = poses.copy()
+    given[0] += [0.25, -0.15, np.deg2rad(2.0)]
+    section = PoseGraphConfig(absolute_sigma_m=None, absolute_sigma_deg=None, slam_absolute_sigma_m=0.1,
+                              slam_absolute_sigma_deg=0.5, motion_sigma_m_per_sqrt_m=0.05,
+                              motion_sigma_deg_per_sqrt_m=1.0)
+    config = RefinementConfig(method="pose_graph", pose_graph=section)
+    inp = refinement_input(scans, given)
+    odometry = refine(inp, config)
+    slam = refine(replace(inp, slam_poses=True), config)
+    assert np.abs(odometry.corrections[0]).max() < 1e-5                 # the first scan held, the map moved
+    moved = planar_difference(odometry.poses, _true(poses))
+    assert np.hypot(moved[1:, 0], moved[1:, 1]).min() > 0.1
+    err = planar_difference(slam.poses, _true(poses))
+    assert slam.stats["applied"] and np.hypot(*err[0, :2]) < 0.02
+    assert np.hypot(err[1:, 0], err[1:, 1]).max() < 0.025
+
+
+def test_the_slam_prior_replaces_only_what_it_sets():
+    from featmap.refinement.terms import with_slam_prior
+
+    base = PoseGraphConfig(absolute_sigma_m=None, absolute_sigma_deg=None, slam_absolute_sigma_m=0.1)
+    assert with_slam_prior(base, False) is base
+    held = with_slam_prior(base, True)
+    assert (held.absolute_sigma_m, held.absolute_sigma_deg) == (0.1, None)
+    unset = PoseGraphConfig()
+    assert with_slam_prior(unset, True) is unset
