@@ -43,8 +43,11 @@ ROOM_WITH_PILLAR = ([0, 0, 12, 0], [12, 0, 12, 8], [12, 8, 6.5, 8], [5.5, 8, 0, 
         [6, 3, 7, 3], [7, 3, 7, 4], [7, 4, 6, 4], [6, 4, 6, 3])
 
 
-def write_room_log(path: Path, rng, n_scans: int = 60) -> Path:
-    """A CARMEN log of a robot driving a loop around the pillar (1 cm range noise, exact poses)."""
+def write_room_log(path: Path, rng, n_scans: int = 60, slam: bool = False, first_pose_error=(0.0, 0.0, 0.0)) -> Path:
+    """A CARMEN log of a robot driving a loop around the pillar (1 cm range noise, exact poses).
+
+    ``slam``: the log's ODOM records are zeros (as in a SLAM-corrected log) instead of the scan poses;
+    ``first_pose_error``: (dx, dy, dtheta) added to the first scan's logged pose."""
     import numpy as np
 
     from featmap.io.carmen import carmen_beam_angles, flaser_log_text
@@ -57,7 +60,10 @@ def write_room_log(path: Path, rng, n_scans: int = 60) -> Path:
     for pose in poses:
         r = cast_rays_2d(np.array(ROOM_WITH_PILLAR, float), pose, angles, max_range=81.83)
         ranges.append(np.where(r < 81.83, r + rng.normal(0, 0.01, len(r)), r))
-    text = flaser_log_text(np.array(ranges), poses, 0.2 * np.arange(n_scans), odometry=poses, comment="synthetic")
+    logged = poses.copy()
+    logged[0] += first_pose_error
+    text = flaser_log_text(np.array(ranges), logged, 0.2 * np.arange(n_scans), odometry=None if slam else logged,
+                           comment="synthetic")
     path.write_text("PARAM robot_frontlaser_offset 0.0 nohost 0\n" + text)
     return path
 

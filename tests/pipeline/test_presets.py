@@ -72,3 +72,26 @@ def test_the_paper_preset_keeps_mean_shifts_published_weakness(tmp_path):
     paper = fuse("meanshift", table.segments, table.scan, load_config("paper").fusion)
     m = truth_free_metrics(paper.segments, points, table.segments)
     assert m.redundancy > 0.1 and m.recall < 0.96
+
+
+def test_a_slam_corrected_log_stays_where_its_poses_put_it(tmp_path):
+    """The first scan logged 0.2 m / 1 deg off, the other 39 exact. In an odometry log (scan poses = ODOM)
+    the indoor preset holds the first scan and moves the map after it; in a SLAM-corrected log (ODOM
+    records elsewhere) it holds the map where the other scans put it and moves the first scan back."""
+    from featmap.io.pose_csv import read_trajectory_xy
+
+    phi = 2 * np.pi * np.arange(40) / 40
+    true = np.column_stack([6.5 + 4.0 * np.cos(phi), 3.5 + 2.2 * np.sin(phi)])
+    error = {}
+    for slam in (False, True):
+        path = write_room_log(tmp_path / f"room_{slam}.log", np.random.default_rng(0), n_scans=40, slam=slam,
+                              first_pose_error=(0.2, -0.1, np.deg2rad(1.0)))
+        out = tmp_path / f"run_{slam}"
+        res = CliRunner().invoke(app, ["run", "--carmen", str(path), "--out", str(out), "--method", "proposed",
+                                       "--cache-dir", str(tmp_path / "c"), "--workers", "1"])
+        assert res.exit_code == 0, res.output
+        metrics = read_run_metrics(out / "metrics.json")
+        assert metrics.refinement.slam_poses is slam and metrics.refinement.applied
+        error[slam] = np.hypot(*(read_trajectory_xy(out / "trajectory_refined.csv") - true).T)
+    assert error[False][0] < 0.25 and error[False][1:].min() > 0.1       # the map followed the first scan
+    assert error[True][0] < 0.03 and error[True][1:].max() < 0.02        # the first scan came back
