@@ -4,8 +4,8 @@
 scan's valid returns in the laser frame, in beam order, with the record's first pose (the SLAM-corrected
 one in the ``*-corrected`` logs, raw odometry in raw ``.clf`` logs) as ``T_world_sensor``. Coordinates
 stay in the log's own frame (no geo origin, so a run writes no WGS84 output). A log whose scan poses
-are not its odometry (the ``*-corrected`` logs, :attr:`~featmap.io.carmen.CarmenLog.poses_replaced`)
-declares them a SLAM result (``slam_poses``), so pose
+are a SLAM result (the ``*-corrected`` logs with their NEFF records, or a log whose ODOM records are all
+zero: :attr:`~featmap.io.carmen.CarmenLog.poses_replaced`) declares so (``slam_poses``), and pose
 refinement holds the map near them (``refinement.pose_graph.slam_absolute_sigma_*``).
 """
 

@@ -13,10 +13,12 @@ One log line is one message; the first word is its type. What is read:
     a laser scan with its own geometry: beam ``k`` at ``start_angle + k * resolution``. ROBOTLASER1
     carries no separate odometry; its robot pose is reported as the odometry pose.
 ``ODOM x y theta tv rv accel timestamp [host logger_timestamp]``
-    raw wheel odometry (all zeros in the Radish "corrected" logs, real in the raw ``.clf`` logs).
+    the robot's odometry: raw wheel odometry in the raw ``.clf`` logs; in the Radish ``*-corrected`` logs
+    the corrected path, with a copy of each scan's pose (timestamp 0) after it.
 
 Everything else (``PARAM``, ``NEFF``, ``RLASER``, ``SYNC``, comments starting with ``#``, ...) is
-skipped. A max-range reading means "no return": FLASER has no max-range field, so it is taken as the
+skipped and counted; ``NEFF`` records (a particle filter's effective sample size, one per scan in the
+``*-corrected`` logs) mark a log whose scan poses are a SLAM result (:attr:`CarmenLog.poses_replaced`). A max-range reading means "no return": FLASER has no max-range field, so it is taken as the
 largest range in the log when that value repeats (the Radish logs use 81.83, 50 and 51.1 m,
 hundreds of times each), and every reading within ``NO_RETURN_MARGIN_M`` of it is a no-return; ROBOTLASER1 gives its max range explicitly.
 
@@ -41,14 +43,11 @@ from featmap.errors import InputFileError
 NO_RETURN_MARGIN_M = 0.1
 """Readings within this of a FLASER log's maximum range are no-returns (51.05 and 51.1 m in fhw)."""
 
-REPLACED_POSE_M = 0.3
-"""A log's scan poses are taken as replaced (a SLAM result) when they lie farther than this from the
-log's ODOM records on median (:attr:`CarmenLog.poses_replaced`)."""
-
 _MESSAGE_TYPE = re.compile(r"[A-Z][A-Z0-9_]*\Z")
 _FLASER = "FLASER"
 _ROBOTLASER = "ROBOTLASER1"
 _ODOM = "ODOM"
+_NEFF = "NEFF"
 
 
 @dataclass(frozen=True)
@@ -101,21 +100,14 @@ class CarmenLog:
 
     @property
     def poses_replaced(self) -> bool:
-        """Whether the scans' poses are not the log's own odometry: the pose of a scan and the ODOM record
-        nearest to it in time are more than ``REPLACED_POSE_M`` apart on median. Radish's ``*-corrected``
-        logs replace the scan poses by a SLAM result and keep (or zero) the raw ODOM records (7-15 m apart
-        on median); in raw logs both are the odometry (3-4 cm apart). False for a log without ODOM records."""
-        if not len(self) or not len(self.odom_pose):
-            return False
-        after = np.searchsorted(self.odom_timestamp, self.timestamp).clip(1, max(len(self.odom_timestamp) - 1, 1))
-        before = after - 1
-        if len(self.odom_timestamp) > 1:
-            later = np.abs(self.odom_timestamp[after] - self.timestamp) < np.abs(self.odom_timestamp[before] - self.timestamp)
-            nearest = np.where(later, after, before)
-        else:
-            nearest = np.zeros(len(self), np.int64)
-        apart = np.hypot(*(self.odom_pose[nearest, :2] - self.pose[:, :2]).T)
-        return bool(np.median(apart) > REPLACED_POSE_M)
+        """Whether the scans' poses are a SLAM result rather than the robot's odometry: the log carries
+        ``NEFF`` records (the effective sample size of the particle filter that corrected it, one per scan
+        in Radish's ``*-corrected`` logs), or it has ODOM records and every one of them is all zeros (the
+        odometry was dropped, as :func:`flaser_log_text` writes by default). Raw logs carry real ODOM
+        records and no NEFF."""
+        if dict(self.skipped).get(_NEFF, 0) > 0:
+            return True
+        return len(self.odom_pose) > 0 and not np.any(self.odom_pose)
 
     def points(self, scan: int) -> np.ndarray:
         """(k, 2) valid returns of one scan in the laser frame, in beam order."""

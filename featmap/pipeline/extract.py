@@ -102,7 +102,7 @@ def extract_source(source: ScanSource, config: ExtractionConfig, store: SegmentS
     results: dict[int, ScanSegments] = {}
     stamps: dict[int, float] = {}
     out = Extraction(frames=[], scans=[], poses=np.zeros((0, 4, 4)), dimension=source.dimension,
-                     slam_poses=bool(source.slam_poses))
+                     slam_poses=bool(getattr(source, "slam_poses", False)))      # (a source that does not say: no)
     start = time.perf_counter()
     with reporter.progress(f"extracting {source.name}", len(source)) as advance:
         def uncached():

@@ -85,7 +85,8 @@ class RefinementInput:
         new[keep] = np.arange(len(keep))
         rows = new[self.scan] >= 0
         return RefinementInput(self.segments[rows], new[self.scan[rows]], self.poses[keep],
-                               None if self.timestamps is None else np.asarray(self.timestamps)[keep])
+                               None if self.timestamps is None else np.asarray(self.timestamps)[keep],
+                               slam_poses=self.slam_poses)
 
 
 @dataclass(frozen=True)

@@ -47,26 +47,33 @@ def test_the_shipped_intel_log():
     assert len(source) == 100 and 100 < len(source[0].points) <= 180
 
 
-def test_scan_poses_that_are_not_the_odometry_are_a_slam_result(tmp_path):
-    """A log whose scan poses follow its ODOM records is odometry; one whose ODOM records are elsewhere
-    (zeros, or the raw odometry beside replaced poses) declares its poses a SLAM result; no ODOM: not."""
+def test_a_log_says_whether_its_scan_poses_are_a_slam_result(tmp_path):
+    """NEFF records (the particle filter that corrected the log) or ODOM records that are all zero: a SLAM
+    result. Real odometry (even when it follows the scan poses closely, as in a corrected log), no ODOM
+    at all, or zero ODOM records only before the first scan among real ones: not."""
     from featmap.io.carmen import flaser_log_text
 
     poses = np.column_stack([np.linspace(1.0, 6.0, 6), np.full(6, 2.0), np.zeros(6)])
     ranges, stamps = np.full((6, 180), 3.0), np.arange(6) * 0.5
-    cases = {"odometry": (poses + 0.01, False), "zeroed": (None, True), "replaced": (poses + [0.5, 0.4, 0.0], True)}
-    for name, (odometry, slam) in cases.items():
-        path = tmp_path / f"{name}.log"
-        path.write_text(flaser_log_text(ranges, poses, stamps, odometry))
+
+    def lines(odometry):
+        return flaser_log_text(ranges, poses, stamps, odometry).splitlines()
+
+    with_neff = [line for pair in zip(lines(poses + 0.03)[0::2], lines(poses + 0.03)[1::2])
+                 for line in (*pair, "NEFF 12.5")]
+    cases = {"odometry": (lines(poses + 0.01), False), "zeroed": (lines(None), True), "neff": (with_neff, True),
+             "no ODOM": ([line for line in lines(None) if not line.startswith("ODOM")], False),
+             "zeros first": (["ODOM 0 0 0 0 0 0 0.0 h 0.0"] + lines(poses), False)}
+    for name, (text, slam) in cases.items():
+        path = tmp_path / f"{name.replace(' ', '_')}.log"
+        path.write_text("\n".join(text) + "\n")
         assert CarmenSource(path).slam_poses is slam, name
-    bare = tmp_path / "bare.log"
-    bare.write_text("\n".join(line for line in flaser_log_text(ranges, poses, stamps).splitlines()
-                              if not line.startswith("ODOM")) + "\n")
-    assert CarmenSource(bare).slam_poses is False
 
 
 @pytest.mark.parametrize("path, slam", [(("carmen_2d", "intel-corrected.log.gz"), True),
+                                        (("carmen_2d", "aces-corrected.log.gz"), True),
                                         (("carmen_2d", "fhw-corrected.log.gz"), True),
+                                        (("carmen_2d_raw", "intel.clf.bz2"), False),
                                         (("carmen_2d_raw", "aces.clf.bz2"), False)])
 def test_the_shipped_logs_say_what_their_poses_are(path, slam):
     assert CarmenSource(shared_data(*path)).slam_poses is slam
