@@ -5,7 +5,7 @@ scan's valid returns in the laser frame, in beam order, with the record's first 
 one in the ``*-corrected`` logs, raw odometry in raw ``.clf`` logs) as ``T_world_sensor``. Coordinates
 stay in the log's own frame (no geo origin, so a run writes no WGS84 output). A log whose scan poses
 are a SLAM result (the ``*-corrected`` logs with their NEFF records, or a log whose ODOM records are all
-zero: :attr:`~featmap.io.carmen.CarmenLog.poses_replaced`) declares so (``slam_poses``), and pose
+zero: :attr:`~featmap.io.carmen.CarmenLog.slam_poses`) declares so (``slam_poses``), and pose
 refinement holds the map near them (``refinement.pose_graph.slam_absolute_sigma_*``).
 """
 
@@ -56,7 +56,7 @@ class CarmenSource(FrameSource):
         self.location = Path(path).resolve()
         self.frames = select_frames(len(self.log), frames, self.name)
         self.notes = SourceNotes()
-        self.slam_poses = self.log.poses_replaced
+        self.slam_poses = self.log.slam_poses
         self._t0 = float(self.log.timestamp[0]) if len(self.log) else 0.0
 
     def scan(self, frame: int) -> Scan:

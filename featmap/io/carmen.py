@@ -18,9 +18,12 @@ One log line is one message; the first word is its type. What is read:
 
 Everything else (``PARAM``, ``NEFF``, ``RLASER``, ``SYNC``, comments starting with ``#``, ...) is
 skipped and counted; ``NEFF`` records (a particle filter's effective sample size, one per scan in the
-``*-corrected`` logs) mark a log whose scan poses are a SLAM result (:attr:`CarmenLog.poses_replaced`). A max-range reading means "no return": FLASER has no max-range field, so it is taken as the
-largest range in the log when that value repeats (the Radish logs use 81.83, 50 and 51.1 m,
-hundreds of times each), and every reading within ``NO_RETURN_MARGIN_M`` of it is a no-return; ROBOTLASER1 gives its max range explicitly.
+``*-corrected`` logs) mark a log whose scan poses are a SLAM result (:attr:`CarmenLog.slam_poses`).
+
+A max-range reading means "no return": FLASER has no max-range field, so it is taken as the largest
+range in the log when that value repeats (the Radish logs use 81.83, 50 and 51.1 m, hundreds of times
+each), and every reading within ``NO_RETURN_MARGIN_M`` of it is a no-return; ROBOTLASER1 gives its max
+range explicitly.
 
 Also :func:`read_relations` reads the ``.relations`` files of the Freiburg SLAM benchmark
 (``t1 t2 x y z roll pitch yaw``: the pose at ``t2`` in the frame at ``t1``).
@@ -99,7 +102,7 @@ class CarmenLog:
         return len(self.ranges)
 
     @property
-    def poses_replaced(self) -> bool:
+    def slam_poses(self) -> bool:
         """Whether the scans' poses are a SLAM result rather than the robot's odometry: the log carries
         ``NEFF`` records (the effective sample size of the particle filter that corrected it, one per scan
         in Radish's ``*-corrected`` logs), or it has ODOM records and every one of them is all zeros (the
