@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Optional
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from featmap.config import Section
 from featmap.geometry import as_segments, segment_lengths
@@ -239,14 +240,16 @@ def cluster_orientations(theta: np.ndarray, bandwidth_rad: float) -> np.ndarray:
 def mean_shift(points: np.ndarray, bandwidth: float) -> np.ndarray:
     """(K,) cluster ids of (K, D) points: scikit-learn's flat-kernel MeanShift, all seeds at once.
 
-    The result is exactly ``MeanShift(bandwidth=bandwidth, bin_seeding=True, cluster_all=True)
+    The result is ``MeanShift(bandwidth=bandwidth, bin_seeding=True, cluster_all=True)
     .fit_predict(points)`` (same seeds, neighbourhoods, means, stopping rule, duplicate removal and
-    nearest-centre labels; a test checks it), but every seed climbs in the same iteration with one
-    batched radius query per iteration, instead of one Python-level query per seed and iteration
-    (which made scikit-learn's loop 20-50x slower on large maps).
+    nearest-centre labels; a test checks it on points in general position), but every seed climbs in the
+    same iteration with one batched radius query per iteration, instead of one Python-level query per
+    seed and iteration (which made scikit-learn's loop 20-50x slower on large maps). The queries are
+    scipy KD-trees (closed balls, as scikit-learn's; importing scikit-learn would cost most of a second):
+    each neighbourhood is averaged in index order, where scikit-learn sums in its tree's order, so when a
+    neighbour lies at exactly the bandwidth or a point exactly between two centres, float rounding may
+    decide differently (points on a grid; never seen on real fusion inputs).
     """
-    from sklearn.neighbors import NearestNeighbors
-
     points = np.asarray(points, dtype=np.float64)
     if len(points) < 2:
         return np.zeros(len(points), np.int64)
@@ -256,14 +259,14 @@ def mean_shift(points: np.ndarray, bandwidth: float) -> np.ndarray:
     seeds = _bin_seeds(points, bandwidth)
     stop_thresh = 1e-3 * bandwidth
     max_iter = 300                                      # MeanShift's default
-    neighbours = NearestNeighbors(radius=bandwidth, n_jobs=1).fit(points)
+    tree = cKDTree(points)
     current = seeds.astype(np.float64)                  # float32 bin seeds, as scikit-learn makes them
     final = np.zeros_like(current)
     count = np.zeros(len(seeds), dtype=np.int64)
     iterations = np.zeros(len(seeds), dtype=np.int64)
     active = np.arange(len(seeds))
     while len(active):
-        found = neighbours.radius_neighbors(current[active], bandwidth, return_distance=False)
+        found = tree.query_ball_point(current[active], bandwidth, return_sorted=True)
         still = []
         for seed, idx in zip(active, found):
             if len(idx) == 0:
@@ -279,14 +282,18 @@ def mean_shift(points: np.ndarray, bandwidth: float) -> np.ndarray:
     intensity = {tuple(final[s]): int(count[s]) for s in range(len(seeds)) if count[s]}
     by_intensity = sorted(intensity.items(), key=lambda item: (item[1], item[0]), reverse=True)
     centres = np.array([centre for centre, _ in by_intensity])
-    near = NearestNeighbors(radius=bandwidth, n_jobs=1).fit(centres).radius_neighbors(centres, return_distance=False)
+    near = cKDTree(centres).query_ball_point(centres, bandwidth)
     unique = np.ones(len(centres), dtype=bool)
     for k in range(len(centres)):
         if unique[k]:
             unique[near[k]] = False
             unique[k] = True
-    _, nearest = NearestNeighbors(n_neighbors=1, n_jobs=1).fit(centres[unique]).kneighbors(points)
-    return nearest.reshape(-1).astype(np.int64)
+    kept = centres[unique]
+    k = min(3, len(kept))
+    dist, idx = cKDTree(kept).query(points, k=[1, 2, 3][:k])
+    # scikit-learn breaks exact ties towards the lower centre index (the stronger cluster).
+    idx = np.where(dist == dist[:, :1], idx, len(kept))
+    return idx.min(axis=1).astype(np.int64)
 
 
 def _bin_seeds(points: np.ndarray, bin_size: float) -> np.ndarray:

@@ -28,7 +28,7 @@ class MethodRun:
 
 
 def warm_up(methods: list[str]) -> float:
-    """Load every method's libraries (scikit-learn) and compiled code (numba) so that this one-off cost is
+    """Load every method's libraries and compiled code (numba) so that this one-off cost is
     not charged to the first method's fusion time. Returns the seconds it took."""
     start = time.perf_counter()
     for name in methods:
