@@ -47,11 +47,15 @@ wall's points away. One pass, no randomness:
    column's median offset and little seen through it (``max_behind``), is not seen edge-on
    (``max_incidence_deg``), is not two columns of returns with nothing between them (a gap longer
    than ``max_gap_m`` within ``min_azimuth_steps`` as seen from the sensor: a far corner and a pole
-   one step apart fit any line), spans ``min_span_m`` in height, reaches ``min_top_m`` above the local
+   one step apart fit any line), is, when seen in one or two columns of returns, straight in them
+   (``max_column_curve_m``: the columns' slanted sheets of beams cut a wall in straight lines; a
+   tree crown seen from afar, whose depth follows its round, lines up with the ray as a curve),
+   spans ``min_span_m`` in height, reaches ``min_top_m`` above the local
    ground, and is tall in one of three ways: it stops the scan's top beam (half of its 0.5 m
    columns whose top is seen), or it is ``tall_m`` high, or it is ``long_m`` long and
-   ``long_min_top_m`` high. Heights are medians over the columns, so a tree crown over a fence
-   does not lift it. A facade at 20 m is seen only up to ~2.5 m by an HDL-64 (upper beam +2 deg),
+   ``long_min_top_m`` high. Heights are medians over the columns whose top is seen (when at least
+   ``MIN_SEEN_FRACTION`` of them are; else over all), so a tree crown over a fence does not lift it,
+   nor when street trees hide the top of the rest of the fence. A facade at 20 m is seen only up to ~2.5 m by an HDL-64 (upper beam +2 deg),
    but it stops the top beam; a 1.5 m car never does, nor does a 2 m van at 11 m.
    *Long pieces* (``solid_length_m``) are no tree crown: they may float (a wall seen over the house
    in front of it), may be seen over a narrow band when they stop the top beam (``solid_min_span_m``:
@@ -119,6 +123,7 @@ class VerticalStructureConfig(Section):
     max_behind: float = Field(1.0, ge=0, description="... and at most this many returns per wall return lie up to 1 m behind it (a wall hides what is behind it; foliage does not)")
     max_incidence_deg: float = Field(88.0, ge=0, le=90, description="a wall is seen at most this far from head-on (returns along a ray are a round thing seen at several depths, not a surface seen edge-on)")
     min_azimuth_steps: float = Field(1.5, ge=0, description="a wall whose returns leave a gap longer than max_gap_m spans at least this many of the scan's azimuth steps as seen from the sensor (two columns of returns with nothing between, e.g. a far corner and a pole one step apart, fit any line)")
+    max_column_curve_m: float = Field(0.07, gt=0, description="a wall spanning fewer than min_azimuth_steps has its returns' positions along it within this (median) of a fit on their height, azimuth and product (one or two columns of returns cut a wall in straight lines; a tree crown seen from afar curves)")
     min_span_m: float = Field(0.8, ge=0, description="a wall's returns span at least this much in height ...")
     min_top_m: float = Field(1.5, ge=0, description="... and reach at least this high above the local ground, and it ...")
     tall_m: float = Field(2.3, ge=0, description="... is hit by the scan's top beam, or is this high (taller than vans, fences, hedges), ...")
@@ -148,6 +153,9 @@ BEHIND_MAX_HEIGHT_M = 1.8
 """... if they are at most this high above the ground (a tree crown behind a low wall does not count)."""
 TOP_BEAM_DEG = 0.1
 """Returns within this elevation of the top beam are the top beam's (degrees)."""
+MIN_SEEN_FRACTION = 0.25
+"""A piece's top and top-beam reach are judged over its columns whose top is seen when they are at least
+this share of its columns (else over all its columns)."""
 SEEN_OVER_M = 0.5
 """A return this much farther away than a structure, and higher, was seen over it (metres)."""
 
@@ -838,11 +846,16 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     # The piece's top: the median of its columns' tops, over the columns whose top is seen (a tree
     # crown over a fence does not lift it; one in front of a wall does not lower it).
     seen_col = ~hidden | reaching
+    # Columns whose top beam stopped in front of them (a tree crown, a van) do not count, unless too
+    # few are seen: then those few may be the ones a crown hangs over, and every column counts.
+    seen = np.bincount(col_piece, seen_col, n)
+    columns = np.bincount(col_piece, minlength=n)
+    enough = seen >= MIN_SEEN_FRACTION * columns
+    seen_col &= enough[col_piece]
+    seen = np.where(enough, seen, 0)
     top = _group_median(col_piece[seen_col], col_top[seen_col], n)
     top = np.where(np.isnan(top), _group_median(col_piece, col_top, n), top)
-    # Columns whose top beam stopped in front of them (a tree crown, a van) do not count.
-    seen = np.bincount(col_piece, seen_col, n)
-    reaches_top = (seen > 0) & (np.bincount(col_piece, reaching, n) >= 0.5 * seen)
+    reaches_top = (seen > 0) & (np.bincount(col_piece, reaching & seen_col, n) >= 0.5 * seen)
     bottom = np.full(n, np.inf)
     np.minimum.at(bottom, piece, cells.bottom[members])
     # How far each cell's lowest return floats above the ground, less one beam spacing at its range
@@ -878,6 +891,9 @@ class PieceMeasures:
         core: (n,) share of inliers within ``core_m`` of the median offset of their 0.5 m column.
         behind: (n,) non-ground points up to ``BEHIND_M`` behind the line (seen from the sensor), per inlier.
         max_gap: (n,) longest stretch of the line between two consecutive inliers.
+        column_curve: (n,) median distance of the inliers' positions along the line from their best fit on
+            height, azimuth and their product (a wall seen in one or two columns of returns: the straight
+            lines where the columns' slanted sheets of beams cut it, ~1 cm; a round thing: a curve).
     """
 
     a: np.ndarray
@@ -891,6 +907,7 @@ class PieceMeasures:
     core: np.ndarray
     behind: np.ndarray
     max_gap: np.ndarray
+    column_curve: np.ndarray
 
     @property
     def length(self) -> np.ndarray:
@@ -960,7 +977,40 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
                          rms=np.sqrt(np.bincount(piece, offset ** 2, n) / safe),
                          core=np.bincount(piece, np.abs(offset - col_median[col]) <= config.core_m, n) / safe,
                          behind=_points_behind(cells, a, b, config) / safe,
-                         max_gap=_max_gap(piece, along, n))
+                         max_gap=_max_gap(piece, along, n),
+                         column_curve=_column_curve(xyz[member], along, piece, mean, n))
+
+
+def _column_curve(pts: np.ndarray, along: np.ndarray, piece: np.ndarray, mean: np.ndarray, n: int) -> np.ndarray:
+    """(n,) median absolute residual of each piece's (K,) ``along`` positions of its (K, 3) points ``pts``
+    after a least-squares fit (refitted once without the returns more than three medians off) on their
+    height, their azimuth (as seen from the sensor, relative to the direction
+    of the piece's centre ``mean`` (n, 2)) and their product (each column of returns cuts a wall in a
+    line of its own slope); ``piece`` (K,) labels the points."""
+    centre = mean[piece, 0] + 1j * mean[piece, 1]
+    azimuth = np.angle((pts[:, 0] + 1j * pts[:, 1]) * np.conj(centre))
+    count = np.maximum(np.bincount(piece, minlength=n), 1).astype(float)
+
+    def centred(v):
+        return v - (np.bincount(piece, v, n) / count)[piece]
+
+    def scaled(v):                                       # unit spread per piece: a well-conditioned fit
+        v = centred(v)
+        return v / np.sqrt(np.maximum(np.bincount(piece, v * v, n) / count, 1e-30))[piece]
+
+    z, az = scaled(pts[:, 2]), scaled(azimuth)
+    x = np.column_stack([np.ones(len(z)), z, az, scaled(z * az)])
+    y = along
+    weight = np.ones(len(y))
+    for _ in range(2):                                   # fit, then refit without returns 3 medians off
+        normal = np.stack([np.stack([np.bincount(piece, weight * x[:, i] * x[:, j], n) for j in range(4)], -1)
+                           for i in range(4)], -2)                                                       # (n, 4, 4)
+        rhs = np.stack([np.bincount(piece, weight * x[:, i] * y, n) for i in range(4)], -1)[..., None]  # (n, 4, 1)
+        coef = (np.linalg.pinv(normal, rcond=1e-9) @ rhs)[..., 0]                                     # (n, 4)
+        residual = np.abs(y - (x * coef[piece]).sum(-1))
+        median = _group_median(piece, residual, n)
+        weight = (residual <= 3 * median[piece] + 1e-9).astype(float)
+    return median
 
 
 def _max_gap(piece: np.ndarray, along: np.ndarray, n: int) -> np.ndarray:
@@ -1056,6 +1106,9 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
     if azimuth_step_deg:
         two_columns = _azimuth_gap(m.a, m.b) < np.deg2rad(config.min_azimuth_steps * azimuth_step_deg)
         wall &= ~(two_columns & (m.max_gap > config.max_gap_m))
+        # Seen in one or two columns, a wall is where their slanted sheets of beams cut it: straight
+        # lines in height and azimuth. A tree crown seen from afar curves (its depth follows its round).
+        wall &= ~(two_columns & (m.column_curve > config.max_column_curve_m))
     # A piece must be about as thin as this scan's long walls are (their spread is the sensor's noise).
     if (wall & solid).sum() >= 3:
         typical = float(np.median(m.rms[wall & solid]))
@@ -1134,4 +1187,4 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
 
 
 EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,
-                      extract=extract_vertical_structure, version=3)
+                      extract=extract_vertical_structure, version=4)

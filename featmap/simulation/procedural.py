@@ -33,7 +33,7 @@ import numpy as np
 from featmap.simulation.sensors import SENSORS, SensorPreset
 from featmap.simulation.worlds import World, world_from_dict
 
-TUNING_SEEDS: tuple[int, ...] = (11, 12, 13, 14, 15, 16, 17, 18, 54, 82, 138)
+TUNING_SEEDS: tuple[int, ...] = (11, 12, 13, 14, 15, 16, 17, 18, 54, 82, 138, 19, 20, 21, 22, 23, 24, 25, 26, 27, 28)
 """Worlds to develop and tune on: look at them, plot them, tune every default on them. 54, 82 and 138
 were added later, after the held-out report showed its two least precise worlds to be 128-beam scans
 with coarse azimuth steps, a kind none of the first eight tuning worlds had: they were chosen by their

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from featmap.geometry import point_segment_distance
-from featmap.evaluation.map_metric import SegmentIndex, TruthFreeConfig, sample_segments, truth_free_metrics
+from featmap.evaluation.map_metric import (SegmentIndex, TruthFreeConfig, greedy_cover, map_reference, sample_segments,
+                                        score_map, truth_free_metrics)
 
 SQUARE = np.array([[0, 0, 10, 0], [10, 0, 10, 10], [10, 10, 0, 10], [0, 10, 0, 0]], float)
 
@@ -113,3 +114,16 @@ def test_covered_points_are_the_points_near_a_segment_exactly():
         expected = SegmentIndex(segments, tol, step).near(points)
         assert 0.2 < expected.mean() < 0.9
         assert np.array_equal(covered_points(segments, cKDTree(points), tol, step), expected)
+
+
+def test_greedy_cover_takes_whole_walls_before_their_pieces_and_longer_walls_first():
+    walls = np.array([[0, 0, 10, 0], [10, 0, 10, 4], [0, 6, 3, 6]], float)       # 10, 4 and 3 m long
+    pts = _wall_points(walls, noise=0.005)
+    raw = _raw_views(walls)                                                      # 15 pieces of 0.6-2 m
+    reference = map_reference(pts, raw)
+    candidates = np.vstack([raw, walls])                                        # the whole walls come last
+    one, three, all_ = greedy_cover(candidates, reference, [1, 3, 50])
+    assert np.array_equal(one, [15]) and np.array_equal(three, [15, 16, 17])
+    assert len(all_) == 3                              # nothing left to cover after the three walls
+    assert score_map(candidates[three], reference).recall == pytest.approx(1.0)
+    assert greedy_cover(candidates, reference, []) == []

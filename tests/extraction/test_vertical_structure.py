@@ -19,11 +19,12 @@ from featmap.simulation.sensors import SENSORS
 from featmap.simulation.worlds import world_from_dict
 
 
-def cast_scan(objects: list[dict], sensor: str = "hdl64", noise: float = 0.02, seed: int = 0) -> np.ndarray:
+def cast_scan(objects: list[dict], sensor: str = "hdl64", noise: float = 0.02, seed: int = 0,
+              azimuth_step: float | None = None) -> np.ndarray:
     """(N, 4) float32 scan of ``objects`` (simulator world objects) from a sensor at (0, 0, height)."""
     world = world_from_dict({"name": "test", "route": {"waypoints": [[-1, 0], [1, 0]]}, "objects": objects}, "test")
     scene, _ = build_scene(world)
-    preset = SENSORS[sensor]
+    preset = SENSORS[sensor] if azimuth_step is None else SENSORS[sensor].with_azimuth_step(azimuth_step)
     directions = preset.ray_directions()
     t, _, _ = cast(scene, np.array([0.0, 0.0, preset.height_m]), directions)
     hit = np.isfinite(t) & (t <= preset.max_range_m) & (t >= preset.min_range_m)
@@ -237,7 +238,7 @@ def test_pieces_seen_edge_on_are_not_walls():
         one = np.ones(1)
         return PieceMeasures(a=np.array([a], float), b=np.array([b], float), count=100 * one, n_points=100 * one,
                              z_mean=0 * one, z_min=-1 * one, z_max=2 * one, rms=0.01 * one, core=one, behind=0 * one,
-                             max_gap=0 * one)
+                             max_gap=0 * one, column_curve=0 * one)
 
     assert len(wall_segments(measures([40, 1.0], [43, 3.0]), VerticalStructureConfig())) == 1    # 60 deg
     assert len(wall_segments(measures([40, 1.0], [43, 1.1]), VerticalStructureConfig())) == 0    # 89 deg
@@ -253,7 +254,7 @@ def test_two_columns_with_nothing_between_are_not_a_wall():
         one = np.ones(1)
         return PieceMeasures(a=np.array([a], float), b=np.array([b], float), count=100 * one, n_points=100 * one,
                              z_mean=0 * one, z_min=-1 * one, z_max=2 * one, rms=0.01 * one, core=one, behind=0 * one,
-                             max_gap=max_gap * one)
+                             max_gap=max_gap * one, column_curve=0 * one)
 
     step = 0.38
     far = np.array([130.0, 0.0])
@@ -266,6 +267,41 @@ def test_two_columns_with_nothing_between_are_not_a_wall():
     assert len(wall_segments(measures(far, one_step, 4.2), VerticalStructureConfig(min_azimuth_steps=0), step)) == 1
     three_steps = far + 3.0 * across       # 2.95 m across the ray at 130 m: 3.4 steps
     assert len(wall_segments(measures(far, three_steps, 1.2), config, step)) == 1
+
+
+def test_tree_crowns_seen_along_the_ray_from_afar_are_not_walls():
+    """A crown 40-75 m away shows a single column of returns at several depths that lines up with the ray
+    (edge-on, within max_incidence_deg); a wall seen in one column would be a straight line in height
+    and azimuth, the crown's round is not (max_column_curve_m). The building beside them is still found."""
+    trees = [{"kind": "tree", "position": [40 + 5 * k, -12 + 3 * k], "trunk_height": 2.6, "crown_radius": 2.9}
+             for k in range(8)]
+    scan = cast_scan(trees + [building(-40, 10, -25, 25)], sensor="vls128", azimuth_step=0.27)
+    result = extract_vertical_structure(scan)
+    assert len(result) >= 1
+    for seg in result.segments:
+        assert on_line(seg, [-40, 10], [-25, 10], 0.1) or on_line(seg, [-25, 10], [-25, 25], 0.1), seg
+    loose = extract_vertical_structure(scan, VerticalStructureConfig(max_column_curve_m=100.0))
+    assert any(seg[[0, 2]].min() > 35 for seg in loose.segments)     # without the rule a crown passes
+
+
+def test_a_fence_under_a_crown_behind_street_trees_is_no_wall(monkeypatch):
+    """Street trees stop the top beam in front of most of a 1.5 m fence; the few columns whose top is seen
+    are the ones a crown hangs over. Judged over those alone, the fence would be as high as the crown
+    and reach the top beam; too few of its columns are seen, so all of them count (MIN_SEEN_FRACTION)."""
+    import featmap.extraction.vertical_structure as vs
+
+    fence = {"kind": "fence", "line": [[6, 4], [16, 8]], "height": 1.5}
+    crown = {"kind": "tree", "position": [8, 4.3], "trunk_height": 2.7, "crown_radius": 2.3}
+    street = [{"kind": "tree", "position": [x, 2.5], "trunk_height": 2.2, "crown_radius": 1.5} for x in (7, 10, 13)]
+    scan = cast_scan([fence, crown, *street, building(-40, 10, -25, 25)], sensor="vls128", azimuth_step=0.27)
+
+    def on_fence(result):
+        return [seg for seg in result.segments if on_line(seg, [6, 4], [16, 8], 0.3)]
+
+    assert on_fence(extract_vertical_structure(scan)) == []
+    assert len(extract_vertical_structure(scan)) == 2                 # the building's two faces
+    monkeypatch.setattr(vs, "MIN_SEEN_FRACTION", 0.0)
+    assert len(on_fence(extract_vertical_structure(scan))) == 1       # judged over the seen columns alone
 
 
 def test_deterministic_and_independent_of_point_order():
