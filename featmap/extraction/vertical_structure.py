@@ -893,7 +893,8 @@ class PieceMeasures:
         max_gap: (n,) longest stretch of the line between two consecutive inliers.
         column_curve: (n,) median distance of the inliers' positions along the line from their best fit on
             height, azimuth and their product (a wall seen in one or two columns of returns: the straight
-            lines where the columns' slanted sheets of beams cut it, ~1 cm; a round thing: a curve).
+            lines where the columns' slanted sheets of beams cut it, ~1 cm; a round thing: a curve); only
+            for pieces spanning fewer than ``min_azimuth_steps`` (0 for the others).
     """
 
     a: np.ndarray
@@ -978,7 +979,27 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
                          core=np.bincount(piece, np.abs(offset - col_median[col]) <= config.core_m, n) / safe,
                          behind=_points_behind(cells, a, b, config) / safe,
                          max_gap=_max_gap(piece, along, n),
-                         column_curve=_column_curve(xyz[member], along, piece, mean, n))
+                         column_curve=_narrow_column_curve(xyz[member], along, piece, mean, a, b, config))
+
+
+def _narrow_column_curve(pts: np.ndarray, along: np.ndarray, piece: np.ndarray, mean: np.ndarray, a: np.ndarray,
+                         b: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """:func:`_column_curve` of the pieces (ends ``a``, ``b`` (n, 2)) spanning fewer than
+    ``min_azimuth_steps`` of the scan's azimuth steps (the only ones the wall test asks it of); 0 for the
+    others, and for all when the scan's step is not known (``link_azimuth_steps`` = 0)."""
+    n = len(a)
+    out = np.zeros(n)
+    if config.link_azimuth_steps <= 0:
+        return out
+    step = np.deg2rad(config.link_azimuth_deg / config.link_azimuth_steps)
+    narrow = np.flatnonzero(_azimuth_gap(a, b) < config.min_azimuth_steps * step)
+    if len(narrow) == 0:
+        return out
+    index = np.full(n, -1)
+    index[narrow] = np.arange(len(narrow))
+    keep = index[piece] >= 0
+    out[narrow] = _column_curve(pts[keep], along[keep], index[piece[keep]], mean[narrow], len(narrow))
+    return out
 
 
 def _column_curve(pts: np.ndarray, along: np.ndarray, piece: np.ndarray, mean: np.ndarray, n: int) -> np.ndarray:
