@@ -145,7 +145,7 @@ def frontier_table_rows(name: str, rows: list[dict]) -> list[list]:
     return out
 
 
-def selection_bound_row(name: str, points: np.ndarray, raw: np.ndarray, fused: np.ndarray, config) -> list:
+def greedy_choice_row(name: str, points: np.ndarray, raw: np.ndarray, fused: np.ndarray, config) -> list:
     """What choosing lines with the metric itself reaches: per level of ``FRONTIER_LEVELS``, the recall of
     the greedy maximum-coverage choice of ``raw / level`` lines among the raw segments and the
     ``indoor_2d`` proposed map, as "recall (precision)"."""
@@ -215,7 +215,7 @@ def main() -> None:
                     failures.append([name, preset, method, *failure_modes(
                         fused.segments, fused.labels, result.products.table.segments, points).values()])
             if preset == "indoor_2d" and args.frontier:
-                bound_row = selection_bound_row(name, points, result.products.table.segments,
+                greedy_row = greedy_choice_row(name, points, result.products.table.segments,
                                                 result.products.results["proposed"].segments, config.evaluation.map)
             if preset in ("indoor_2d", "paper"):
                 maps[preset] = (read_fused_csv(out / "fused_proposed.csv")[0], points)
@@ -224,7 +224,7 @@ def main() -> None:
         reporter.info(f"{name}: {len(source)} scans read and extracted in {read_seconds[name]:.2f} s")
         if args.frontier:
             frontier += frontier_table_rows(name, compression_frontier(path, args.out / name / "frontier", args.cache_dir))
-            frontier.append(bound_row)
+            frontier.append(greedy_row)
 
     header = ["log", "scans", "preset", "method", "raw segments", "features", "precision", "recall", "redundancy",
               "compression", "fusion s"]

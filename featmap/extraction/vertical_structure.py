@@ -50,12 +50,12 @@ wall's points away. One pass, no randomness:
    one step apart fit any line), is, when seen in one or two columns of returns, straight in them
    (``max_column_curve_m``: the columns' slanted sheets of beams cut a wall in straight lines; a
    tree crown seen from afar, whose depth follows its round, lines up with the ray as a curve),
-   spans ``min_span_m`` in height, reaches ``min_top_m`` above the local
-   ground, and is tall in one of three ways: it stops the scan's top beam (half of its 0.5 m
-   columns whose top is seen), or it is ``tall_m`` high, or it is ``long_m`` long and
-   ``long_min_top_m`` high. Heights are medians over the columns whose top is seen (when at least
-   ``MIN_SEEN_FRACTION`` of them are; else over all), so a tree crown over a fence does not lift it,
-   nor when street trees hide the top of the rest of the fence. A facade at 20 m is seen only up to ~2.5 m by an HDL-64 (upper beam +2 deg),
+   spans ``min_span_m`` in height, reaches ``min_top_m`` above the local ground, and is tall in one
+   of three ways: it stops the scan's top beam (half of its 0.5 m columns whose top is seen), or it
+   is ``tall_m`` high, or it is ``long_m`` long and ``long_min_top_m`` high. Heights are medians over
+   the columns whose top is seen (when at least ``MIN_SEEN_FRACTION`` of them are; else over all), so
+   a tree crown over a fence does not lift it, nor when street trees hide the top of the rest of the
+   fence. A facade at 20 m is seen only up to ~2.5 m by an HDL-64 (upper beam +2 deg),
    but it stops the top beam; a 1.5 m car never does, nor does a 2 m van at 11 m.
    *Long pieces* (``solid_length_m``) are no tree crown: they may float (a wall seen over the house
    in front of it), may be seen over a narrow band when they stop the top beam (``solid_min_span_m``:
