@@ -523,6 +523,18 @@ def _azimuth_gap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.abs(np.angle((a[:, 0] + 1j * a[:, 1]) * np.conj(b[:, 0] + 1j * b[:, 1])))
 
 
+def _configured_step_deg(config: VerticalStructureConfig) -> float | None:
+    """The scan's azimuth step (degrees) as ``extract_vertical_structure`` put it into ``config``
+    (``link_azimuth_deg`` = ``link_azimuth_steps`` steps), or None when ``link_azimuth_steps`` is 0."""
+    return config.link_azimuth_deg / config.link_azimuth_steps if config.link_azimuth_steps > 0 else None
+
+
+def _few_columns(a: np.ndarray, b: np.ndarray, step_deg: float, config: VerticalStructureConfig) -> np.ndarray:
+    """(K,) True where the piece a-b ((K, 2) ends) spans fewer than ``min_azimuth_steps`` azimuth steps
+    of ``step_deg`` as seen from the sensor: one or two columns of returns."""
+    return _azimuth_gap(a, b) < np.deg2rad(config.min_azimuth_steps * step_deg)
+
+
 def cell_pieces(cells: Cells, group: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
     """(C,) piece label of each candidate cell from its line group (``group``, -1 = none); -1 = none.
 
@@ -989,10 +1001,10 @@ def _narrow_column_curve(pts: np.ndarray, along: np.ndarray, piece: np.ndarray, 
     others, and for all when the scan's step is not known (``link_azimuth_steps`` = 0)."""
     n = len(a)
     out = np.zeros(n)
-    if config.link_azimuth_steps <= 0:
+    step = _configured_step_deg(config)
+    if step is None:
         return out
-    step = np.deg2rad(config.link_azimuth_deg / config.link_azimuth_steps)
-    narrow = np.flatnonzero(_azimuth_gap(a, b) < config.min_azimuth_steps * step)
+    narrow = np.flatnonzero(_few_columns(a, b, step, config))
     if len(narrow) == 0:
         return out
     index = np.full(n, -1)
@@ -1122,10 +1134,10 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
     mid = (m.a + m.b) / 2
     along_ray = np.abs(((m.b - m.a) * mid).sum(1)) / np.maximum(m.length * np.hypot(mid[:, 0], mid[:, 1]), 1e-9)
     wall &= along_ray <= np.sin(np.deg2rad(config.max_incidence_deg))
-    if azimuth_step_deg is None and config.link_azimuth_steps > 0:
-        azimuth_step_deg = config.link_azimuth_deg / config.link_azimuth_steps
+    if azimuth_step_deg is None:
+        azimuth_step_deg = _configured_step_deg(config)
     if azimuth_step_deg:
-        two_columns = _azimuth_gap(m.a, m.b) < np.deg2rad(config.min_azimuth_steps * azimuth_step_deg)
+        two_columns = _few_columns(m.a, m.b, azimuth_step_deg, config)
         wall &= ~(two_columns & (m.max_gap > config.max_gap_m))
         # Seen in one or two columns, a wall is where their slanted sheets of beams cut it: straight
         # lines in height and azimuth. A tree crown seen from afar curves (its depth follows its round).
