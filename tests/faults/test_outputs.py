@@ -2,11 +2,11 @@
 
 import json
 import shutil
-import time
 
 import numpy as np
 
 from featmap.io.segments_csv import SegmentTable, write_segments_csv
+from featmap.pipeline.run_folder import RunFolder
 from featmap.simulation.segments import observe_walls
 from tests.faults.conftest import cli, contract_files, featmap_process, one_line_error, run_args
 
@@ -74,19 +74,25 @@ def test_a_full_disk_for_fuse_writes_nothing_half(tmp_path, small_disk):
 
 
 def test_two_runs_into_one_folder_at_once(case1_drive, tmp_path):
-    args = run_args(case1_drive, tmp_path / "r", tmp_path / "c", "--method", "all")
-    first = featmap_process(*args)
-    lock = tmp_path / ".r.lock"
-    deadline = time.time() + 60
-    while not list(tmp_path.glob(".r.partial-*")) and time.time() < deadline and first.poll() is None:
-        time.sleep(0.02)
-    second = featmap_process(*args)
-    out2, err2 = second.communicate(timeout=120)
-    out1, err1 = first.communicate(timeout=300)
-    assert first.returncode == 0, err1[-2000:]
+    """A run into a folder another process is still writing fails at once and leaves that run's work alone.
+
+    The other run is this test process holding the folder as a run does (a real second ``featmap run``
+    started beside a first one could find the first already finished: the test would race)."""
+    out = tmp_path / "r"
+    args = run_args(case1_drive, out, tmp_path / "c", "--method", "proposed", "--frames", "0:6")
+    with RunFolder(out) as writing:
+        (writing.tmp / "metrics.json").write_text('{"writer": "the first run"}')
+        second = featmap_process(*args)
+        _, err2 = second.communicate(timeout=120)
+        writing.commit()
     assert second.returncode == 2 and "another featmap run is writing to it" in err2
     assert len([line for line in err2.splitlines() if line.startswith("featmap: error")]) == 1
-    assert lock.exists() and json.loads((tmp_path / "r" / "metrics.json").read_text())["scans"]["processed"] == 40
+    assert json.loads((out / "metrics.json").read_text()) == {"writer": "the first run"}
+    assert not list(tmp_path.glob(".r.partial-*")) and not list((tmp_path / "c").rglob("*.npz"))
+    third = featmap_process(*args)                                # the folder is free again
+    _, err3 = third.communicate(timeout=300)
+    assert third.returncode == 0, err3[-2000:]
+    assert json.loads((out / "metrics.json").read_text())["scans"]["processed"] == 6
 
 
 def test_a_simulation_that_fails_midway_leaves_no_partial_drive(tmp_path, small_disk):
