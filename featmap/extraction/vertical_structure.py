@@ -41,7 +41,10 @@ wall's points away. One pass, no randomness:
    apart.
 6. **Pieces**: a total-least-squares line through each group's returns; returns farther than
    ``inlier_tolerance_m`` from it are dropped, the rest is cut where it leaves a gap longer than
-   ``max_gap_m``; pieces on one line with ends less than ``merge_gap_m`` apart are joined.
+   ``max_gap_m``; pieces on one line with ends less than ``merge_gap_m`` apart are joined, and so
+   are single columns of returns one azimuth step apart in line (a far wall seen at grazing
+   incidence by a tilted sensor: each column a slanted streak a metre long, the next metres farther,
+   and no cell of it a metre high, so the columns' cells are never linked).
 7. **Walls**: a piece is a wall when it has ``min_points`` returns, ``min_length_m`` of length,
    ``max_rms_m`` of spread about its line at most, ``min_core_fraction`` of them close to their
    column's median offset and little seen through it (``max_behind``), is not seen edge-on
@@ -62,7 +65,8 @@ wall's points away. One pass, no randomness:
    a facade behind a hedge, or up a slope under the beam), and may have few returns
    (``solid_min_points``). *Shorter pieces* must reach down near the ground
    (``short_max_bottom_m``: a crown floats). The spread of the scan's long walls (their median rms,
-   i.e. the sensor's noise) bounds everyone's: ``solid_rms_factor`` times it for long pieces,
+   i.e. the sensor's noise; not those joined from single columns, whose noise lies along them)
+   bounds everyone's: ``solid_rms_factor`` times it for long pieces,
    ``short_rms_factor`` for short ones (a crown's facets, a wall merged with a crown in line with
    it, are thicker than the scan's walls).
 
@@ -158,7 +162,6 @@ MIN_SEEN_FRACTION = 0.25
 this share of its columns (else over all its columns)."""
 SEEN_OVER_M = 0.5
 """A return this much farther away than a structure, and higher, was seen over it (metres)."""
-
 
 # --- stage 0: input -------------------------------------------------------------------------------------
 
@@ -396,22 +399,33 @@ def _close_pairs(points: np.ndarray, radius: float, config: VerticalStructureCon
     unit = points / np.maximum(rng, 1e-9)[:, None] / np.deg2rad(config.link_azimuth_deg)
     angular = cKDTree(np.column_stack([unit, rng / config.link_radial_m])).query_pairs(1.0, output_type="ndarray")
     parts = [near, angular[np.hypot(*(points[angular[:, 0]] - points[angular[:, 1]]).T) > radius]]
-    if columns is not None and columns.sum() >= 2 and config.link_grazing_deg > 0 and config.link_azimuth_steps > 0:
-        # Neighbouring azimuth steps on a wall seen up to link_grazing_deg from head-on: their ranges
-        # differ by up to r * step * tan(grazing) (a relative change: log range).
-        step = np.deg2rad(config.link_azimuth_deg / config.link_azimuth_steps)
-        tan = np.tan(np.deg2rad(config.link_grazing_deg))
-        unit_step = unit * (np.deg2rad(config.link_azimuth_deg) / (1.5 * step))
-        col = np.flatnonzero(columns)
-        graze = cKDTree(np.column_stack([unit_step[col], np.log(np.maximum(rng[col], 1e-3)) / (1.5 * step * tan)]
-                                        )).query_pairs(np.sqrt(2.0), output_type="ndarray")
-        graze = col[graze.reshape(-1, 2)]
-        i, j = graze[:, 0], graze[:, 1]
-        dphi = _azimuth_gap(points[i], points[j])
-        dr = np.abs(rng[i] - rng[j])
-        keep = (dphi <= 1.5 * step) & (dr > config.link_radial_m) & (dr <= np.minimum(rng[i], rng[j]) * dphi * tan)
-        parts.append(graze[keep])
+    if columns is not None:
+        parts.append(_grazing_pairs(points, columns, config))
     return np.concatenate(parts).astype(np.int64).reshape(-1, 2)
+
+
+def _grazing_pairs(points: np.ndarray, columns: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """(P, 2) index pairs of ``columns`` ((K,) bool) among (K, 2) points one azimuth step apart whose ranges
+    differ by more than ``link_radial_m`` and as on a wall seen up to ``link_grazing_deg`` from head-on."""
+    if columns.sum() < 2 or config.link_grazing_deg <= 0 or config.link_azimuth_steps <= 0:
+        return np.zeros((0, 2), np.int64)
+    from scipy.spatial import cKDTree
+
+    # Neighbouring azimuth steps on a wall seen up to link_grazing_deg from head-on: their ranges
+    # differ by up to r * step * tan(grazing) (a relative change: log range).
+    rng = np.hypot(points[:, 0], points[:, 1])
+    step = np.deg2rad(config.link_azimuth_deg / config.link_azimuth_steps)
+    tan = np.tan(np.deg2rad(config.link_grazing_deg))
+    unit_step = points / np.maximum(rng, 1e-9)[:, None] / (1.5 * step)
+    col = np.flatnonzero(columns)
+    graze = cKDTree(np.column_stack([unit_step[col], np.log(np.maximum(rng[col], 1e-3)) / (1.5 * step * tan)]
+                                    )).query_pairs(np.sqrt(2.0), output_type="ndarray")
+    graze = col[graze.reshape(-1, 2)]
+    i, j = graze[:, 0], graze[:, 1]
+    dphi = _azimuth_gap(points[i], points[j])
+    dr = np.abs(rng[i] - rng[j])
+    keep = (dphi <= 1.5 * step) & (dr > config.link_radial_m) & (dr <= np.minimum(rng[i], rng[j]) * dphi * tan)
+    return graze[keep]
 
 
 def link_cells(centroids: np.ndarray, weights: np.ndarray, config: VerticalStructureConfig,
@@ -495,6 +509,14 @@ def connected_labels(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
 
 # --- stage 5: pieces (on cells) ------------------------------------------------------------------------
 
+def _point_labels(cells: Cells, label: np.ndarray) -> np.ndarray:
+    """(M,) the ``label`` ((C,) per candidate cell) of each point's cell; -1 for points in none (all of
+    them when there is no candidate cell)."""
+    if len(label) == 0:
+        return np.full(len(cells.point_cell), -1)
+    return np.where(cells.point_cell >= 0, label[np.maximum(cells.point_cell, 0)], -1)
+
+
 def _group_lines(label: np.ndarray, cells: Cells, members: np.ndarray, n: int):
     """Exact TLS lines of groups of cells from their moments (parallel-axis theorem).
 
@@ -535,8 +557,9 @@ def _few_columns(a: np.ndarray, b: np.ndarray, step_deg: float, config: Vertical
     return _azimuth_gap(a, b) < np.deg2rad(config.min_azimuth_steps * step_deg)
 
 
-def cell_pieces(cells: Cells, group: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
-    """(C,) piece label of each candidate cell from its line group (``group``, -1 = none); -1 = none.
+def cell_pieces(cells: Cells, group: np.ndarray, config: VerticalStructureConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(C,) piece label of each candidate cell from its line group (``group``, -1 = none; -1 = none) and
+    (C,) True for the cells of pieces joined from single columns of returns (see ``merge_collinear``).
 
     Each group's line is fitted to its points; cells whose centroid lies farther than
     ``inlier_tolerance_m`` from it are dropped; the rest is cut where consecutive cells along the line
@@ -545,9 +568,10 @@ def cell_pieces(cells: Cells, group: np.ndarray, config: VerticalStructureConfig
     the same way, and collinear pieces whose ends are close are joined.
     """
     label = np.full(len(cells), -1)
+    chain = np.zeros(len(cells), bool)
     members = np.flatnonzero(group >= 0)
     if len(members) == 0:
-        return label
+        return label, chain
     _, grp = _labels(group[members])
     for _ in range(2):
         n = int(grp.max()) + 1
@@ -557,7 +581,7 @@ def cell_pieces(cells: Cells, group: np.ndarray, config: VerticalStructureConfig
         keep = np.abs(offset) <= config.inlier_tolerance_m
         members, grp = members[keep], grp[keep]
         if len(members) == 0:
-            return label
+            return label, chain
         along = (rel[keep] * direction[grp]).sum(1)
         order = np.lexsort((along, grp))
         members, grp, along = members[order], grp[order], along[order]
@@ -566,8 +590,8 @@ def cell_pieces(cells: Cells, group: np.ndarray, config: VerticalStructureConfig
         gap = (np.diff(along) > config.max_gap_m) & (_azimuth_gap(c[1:], c[:-1]) > np.deg2rad(config.link_azimuth_deg))
         new[1:] = (grp[1:] != grp[:-1]) | gap
         grp = np.cumsum(new) - 1
-    label[members] = merge_collinear(cells, members, grp, config)
-    return label
+    label[members], chain[members] = merge_collinear(cells, members, grp, config)
+    return label, chain
 
 
 def _piece_ends(cells: Cells, members: np.ndarray, label: np.ndarray, n: int):
@@ -581,25 +605,41 @@ def _piece_ends(cells: Cells, members: np.ndarray, label: np.ndarray, n: int):
     return mean, direction, count, msd, mean + t_min[:, None] * direction, mean + t_max[:, None] * direction, along
 
 
-def merge_collinear(cells: Cells, members: np.ndarray, piece: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+def merge_collinear(cells: Cells, members: np.ndarray, piece: np.ndarray,
+                    config: VerticalStructureConfig) -> tuple[np.ndarray, np.ndarray]:
     """Join pieces (labels ``piece`` of cells ``members``) of one line whose ends are close: within
-    ``merge_gap_m``, or within ``link_azimuth_deg`` and ``link_radial_m`` as seen from the sensor.
-    Returns the new (K,) labels."""
+    ``merge_gap_m``, or within ``link_azimuth_deg`` and ``link_radial_m`` as seen from the sensor, or,
+    for two single columns of returns (pieces spanning fewer than ``min_azimuth_steps`` whose returns
+    stand ``link_column_m`` high), one azimuth step apart as on a wall seen up to ``link_grazing_deg``
+    from head-on (a far wall seen at grazing incidence: each column a streak a metre or two long along
+    it, the next one metres farther). Returns the new (K,) labels and (K,) True for the cells of
+    pieces joined from such columns."""
     n = int(piece.max()) + 1
     if n < 2 or config.merge_gap_m <= 0:
-        return piece
+        return piece, np.zeros(len(piece), bool)
     _, u, _, _, a, b, _ = _piece_ends(cells, members, piece, n)
     ends = np.concatenate([a, b])
-    pairs = _close_pairs(ends, config.merge_gap_m, config)
+    step = _configured_step_deg(config)
+    column = _few_columns(a, b, step, config) if step else np.zeros(n, bool)
+    top, bottom = np.full(n, -np.inf), np.full(n, np.inf)
+    np.maximum.at(top, piece, cells.top[members])
+    np.minimum.at(bottom, piece, cells.bottom[members])
+    column &= top - bottom >= config.link_column_m
+    close = _close_pairs(ends, config.merge_gap_m, config)
+    pairs = np.concatenate([close, _grazing_pairs(ends, np.concatenate([column, column]), config)])
+    grazing = np.arange(len(pairs)) >= len(close)
     i, j = pairs[:, 0] % n, pairs[:, 1] % n
-    i, j = i[i != j], j[i != j]
     normal = np.column_stack([-u[:, 1], u[:, 0]])
     mid = (a + b) / 2
     dm = mid[j] - mid[i]
-    ok = np.abs((u[i] * u[j]).sum(1)) >= np.cos(np.deg2rad(config.merge_angle_deg))
+    ok = i != j
+    ok &= np.abs((u[i] * u[j]).sum(1)) >= np.cos(np.deg2rad(config.merge_angle_deg))
     ok &= np.abs((dm * normal[i]).sum(1)) <= config.merge_offset_m
     ok &= np.abs((dm * normal[j]).sum(1)) <= config.merge_offset_m
-    return connected_labels(n, i[ok], j[ok])[piece]
+    joined = connected_labels(n, i[ok], j[ok])
+    chain = np.zeros(n, bool)
+    chain[joined[i[ok & grazing]]] = True
+    return joined[piece], chain[joined[piece]]
 
 
 # --- levelling ----------------------------------------------------------------------------------------
@@ -629,7 +669,7 @@ def wall_lean(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.ndarr
     the pieces do not constrain it (walls of one direction only: the lean along them moves nothing).
     At most ``MAX_TILT_DEG``. Zero when no piece qualifies.
     """
-    point_piece = np.where(cells.point_cell >= 0, label[np.maximum(cells.point_cell, 0)], -1)
+    point_piece = _point_labels(cells, label)
     member = np.flatnonzero((point_piece >= 0) & (height >= config.line_min_height_m))
     if len(member) == 0:
         return np.zeros(2)
@@ -907,6 +947,8 @@ class PieceMeasures:
             height, azimuth and their product (a wall seen in one or two columns of returns: the straight
             lines where the columns' slanted sheets of beams cut it, ~1 cm; a round thing: a curve); only
             for pieces spanning fewer than ``min_azimuth_steps`` (0 for the others).
+        column_chain: (n,) the piece was joined from single columns of returns one azimuth step apart (a far
+            wall seen at grazing incidence, see ``merge_collinear``); None = none was.
     """
 
     a: np.ndarray
@@ -921,6 +963,7 @@ class PieceMeasures:
     behind: np.ndarray
     max_gap: np.ndarray
     column_curve: np.ndarray
+    column_chain: np.ndarray | None = None
 
     @property
     def length(self) -> np.ndarray:
@@ -928,13 +971,15 @@ class PieceMeasures:
 
 
 def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.ndarray,
-                   config: VerticalStructureConfig, max_lean_deg: float = None) -> PieceMeasures | None:
+                   config: VerticalStructureConfig, max_lean_deg: float = None,
+                   chain: np.ndarray | None = None) -> PieceMeasures | None:
     """Measures of the pieces (``label`` per cell, -1 = none) from the (M, 3) non-ground points ``xyz``
     (``height`` (M,) above the ground) that ``cells`` was made of. Only points at least
     ``line_min_height_m`` up and within ``inlier_tolerance_m`` of the piece's line (refitted once
     after dropping the others) count; distances to the line are taken about its lean (see
-    ``_untilted``). None when no piece is left."""
-    point_piece = np.where(cells.point_cell >= 0, label[np.maximum(cells.point_cell, 0)], -1)
+    ``_untilted``). ``chain`` (C,): the cells of pieces joined from single columns. None when no piece
+    is left."""
+    point_piece = _point_labels(cells, label)
     low = height < config.line_min_height_m
     member = np.flatnonzero((point_piece >= 0) & ~low)
     if len(member) == 0:
@@ -991,7 +1036,8 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
                          core=np.bincount(piece, np.abs(offset - col_median[col]) <= config.core_m, n) / safe,
                          behind=_points_behind(cells, a, b, config) / safe,
                          max_gap=_max_gap(piece, along, n),
-                         column_curve=_narrow_column_curve(xyz[member], along, piece, mean, a, b, config))
+                         column_curve=_narrow_column_curve(xyz[member], along, piece, mean, a, b, config),
+                         column_chain=None if chain is None else np.isin(labels, label[chain]))
 
 
 def _narrow_column_curve(pts: np.ndarray, along: np.ndarray, piece: np.ndarray, mean: np.ndarray, a: np.ndarray,
@@ -1143,8 +1189,11 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
         # lines in height and azimuth. A tree crown seen from afar curves (its depth follows its round).
         wall &= ~(two_columns & (m.column_curve > config.max_column_curve_m))
     # A piece must be about as thin as this scan's long walls are (their spread is the sensor's noise).
-    if (wall & solid).sum() >= 3:
-        typical = float(np.median(m.rms[wall & solid]))
+    # (Not on pieces joined from single columns: seen at grazing incidence, the range noise lies along the
+    # wall, which looks thinner than the sensor's noise.)
+    typical_of = wall & solid if m.column_chain is None else wall & solid & ~m.column_chain
+    if typical_of.sum() >= 3:
+        typical = float(np.median(m.rms[typical_of]))
         wall &= m.rms <= np.where(solid, config.solid_rms_factor, config.short_rms_factor) * typical
     sel = np.flatnonzero(wall)
     if len(sel) == 0:
@@ -1207,11 +1256,11 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
     clock.lap("cells")
     group = link_cells(cells.centroid, cells.count, config, cells.top - cells.bottom >= config.link_column_m)
     clock.lap("lines")
-    label = cell_pieces(cells, group, config)
+    label, chain = cell_pieces(cells, group, config)
     clock.lap("pieces")
     label = tall_pieces(cells, label, config)
     lean = config.max_lean_deg if R is not None else None
-    result = wall_segments(piece_measures(xyz, height, cells, label, config, lean), config, step)
+    result = wall_segments(piece_measures(xyz, height, cells, label, config, lean, chain), config, step)
     result = replace(result, support_points=cells.centroid)
     if R is not None:
         result = unlevel_segments(result, R)
@@ -1220,4 +1269,4 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
 
 
 EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,
-                      extract=extract_vertical_structure, version=4)
+                      extract=extract_vertical_structure, version=5)

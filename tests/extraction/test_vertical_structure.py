@@ -326,6 +326,63 @@ def test_ground_only_and_out_of_range_scans_give_nothing():
     assert len(extract_vertical_structure(far)) == 0
 
 
+def test_a_scan_with_nothing_tall_enough_for_a_wall_gives_nothing():
+    """Only a 0.9 m high box above the ground (a hedge, a low wall): no cell is high enough to take part,
+    and the levelling and the pieces' measures get no cell at all (this raised an IndexError)."""
+    low = cast_scan([building(10, -5, 14, 5, 0.9)])
+    assert len(low) > 10000 and len(extract_vertical_structure(low)) == 0
+
+
+def grazing_columns(step_deg: float = 0.4, wall_x: float = 11.2, y_near: float = -64.0, y_far: float = -83.0,
+                    slant: float = 0.35, noise: float = 0.01) -> np.ndarray:
+    """(N, 4) returns of the wall x = ``wall_x`` (``y_far`` .. ``y_near``) 64-84 m away, seen 80-82 deg from
+    head-on by a sensor ``step_deg`` apart in azimuth and 0.45 m apart in height there: one column of returns
+    per azimuth step, 4 m apart along the wall, each slanting ``slant`` m along it per metre of height (the
+    beams of one azimuth of a sensor tilted on a sloped street cut the wall in a slanted line), over an
+    azimuth-sampled ground at z = -1.73."""
+    rng = np.random.default_rng(0)
+    pts = []
+    for az in np.arange(np.arctan2(y_far, wall_x), np.arctan2(y_near, wall_x), np.deg2rad(step_deg)):
+        for z in np.arange(-1.5, 3.0, 0.45):
+            pts.append([wall_x + rng.normal(0, noise), wall_x * np.tan(az) + slant * z, z])
+    az, r = np.meshgrid(np.deg2rad(np.arange(-180, 180, step_deg)), np.arange(4.0, 90.0, 1.5))
+    ground = np.column_stack([(r * np.cos(az)).ravel(), (r * np.sin(az)).ravel(), np.full(r.size, -1.73)])
+    return np.column_stack([np.vstack([np.array(pts), ground]), np.full(len(pts) + len(ground), 0.3)]).astype(np.float32)
+
+
+def test_a_far_wall_seen_at_grazing_incidence_as_single_columns_is_one_wall():
+    """Six columns of returns 4 m apart along a far wall, each a metre-long slanted streak spanning less
+    than an azimuth step: no two cells of different columns are neighbours (each cell holds one return,
+    so none stands a metre high), but the columns, one azimuth step apart and in line, are joined."""
+    result = extract_vertical_structure(grazing_columns())
+    on_wall = [s for s in result.segments if on_line(s, [11.2, -64], [11.2, -83], 0.05)]
+    assert len(on_wall) == 1
+    assert min(on_wall[0][1], on_wall[0][3]) < -82.5 and max(on_wall[0][1], on_wall[0][3]) > -65.5
+
+
+def test_walls_joined_from_single_columns_do_not_set_the_scans_typical_spread():
+    """Seen at grazing incidence a wall's range noise lies along it, so a wall joined from single columns
+    is thinner than the sensor's noise: it must not lower the spread a short wall is held to."""
+    from featmap.extraction.vertical_structure import PieceMeasures, wall_segments
+
+    n = 7
+    along_x = np.column_stack([np.arange(n) * 30.0 + 10, np.full(n, 20.0)])
+    a, b = along_x, along_x + [8.0, 0.0]
+    b[-1] = a[-1] + [2.0, 0.0]                                    # the last piece: a short wall
+    rms = np.array([0.02, 0.02, 0.02, 0.002, 0.002, 0.002, 0.035])
+    chain = np.array([False, False, False, True, True, True, False])
+    one = np.ones(n)
+
+    def kept(column_chain):
+        m = PieceMeasures(a=a, b=b, count=100 * one, n_points=100 * one, z_mean=0 * one, z_min=-1 * one,
+                          z_max=2 * one, rms=rms, core=one, behind=0 * one, max_gap=0.3 * one,
+                          column_curve=0 * one, column_chain=column_chain)
+        return len(wall_segments(m, VerticalStructureConfig(), 0.2))
+
+    assert kept(chain) == 7                       # typical 0.02 (the three head-on walls): 0.035 <= 2 x 0.02
+    assert kept(None) == 6                        # typical 0.011 with the chains: the short wall is dropped
+
+
 @pytest.mark.parametrize("points,message", [
     (np.array([[1.0, 2.0, np.nan, 0.0]] * 30), "1 point|30 point"),
     (np.zeros((30, 2)), "expected an \\(N, 3\\) or \\(N, 4\\) array"),
