@@ -163,6 +163,7 @@ this share of its columns (else over all its columns)."""
 SEEN_OVER_M = 0.5
 """A return this much farther away than a structure, and higher, was seen over it (metres)."""
 
+
 # --- stage 0: input -------------------------------------------------------------------------------------
 
 def validated_xyz(points) -> np.ndarray:
