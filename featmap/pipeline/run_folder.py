@@ -4,8 +4,9 @@ A run writes into a temporary sibling (``.NAME.partial-PID``) and swaps it in pl
 end, so a crash, a full disk or Ctrl-C leaves the previous run folder as it was (never a mix of two
 runs). A lock file beside it (``.NAME.lock``) makes a second run into the same folder fail at once.
 Opening checks that the folder can be written, and that it is empty or a folder this command wrote
-before (it holds the ``marker`` file): a run never replaces a folder of other files (the input log
-beside it, a user's notes) nor the current folder, so a bad ``--out`` fails before any work.
+before (it holds the ``marker`` file) with nothing added since (its ``MANIFEST`` lists what the run
+wrote): a run never replaces a folder of other files (the input log beside it, a user's notes) nor the
+current folder, so a bad ``--out`` fails before any work.
 """
 
 from __future__ import annotations
@@ -24,6 +25,24 @@ from featmap.errors import FeatmapError
 
 class RunFolderError(FeatmapError):
     """The run folder cannot be written (a file in the way, read-only, full disk, another run)."""
+
+
+MANIFEST = ".featmap-files"
+"""A run folder's list of the entries its run wrote (one name per line): anything else found there later is
+a user's, and a new run into the folder refuses to delete it."""
+DERIVED = ("figures", "batch.json")
+"""Entries made from a run after it (``featmap figures``' default folder, a batch's record of the drive):
+stale once the run is redone, so a new run replaces them."""
+
+
+def check_folder_path(out: str | Path, what: str = "--out") -> None:
+    """Fail (one line naming ``what``) when ``out`` or a folder above it exists but is a file."""
+    out = Path(out)
+    for folder in (out, *out.parents):
+        if folder.exists():
+            if not folder.is_dir():
+                raise RunFolderError(f"{what} {out}: {folder} exists and is not a folder")
+            return
 
 
 class RunFolder:
@@ -57,6 +76,10 @@ class RunFolder:
             if any(out.iterdir()) and not (out / self.marker).is_file():
                 raise RunFolderError(f"--out {out}: holds other files and is not a featmap output folder (no "
                                      f"{self.marker}); a run replaces its --out folder whole: give a new or empty folder")
+            foreign = self.foreign_entries(out)
+            if foreign:
+                raise RunFolderError(f"--out {out}: holds {foreign[0]}, which the run that made the folder did not write; "
+                                     "a run replaces its --out folder whole: move it out first or give another folder")
         parent = out.parent if str(out.parent) else Path(".")
         try:
             parent.mkdir(parents=True, exist_ok=True)
@@ -97,8 +120,20 @@ class RunFolder:
                 return p
         return path
 
+    @staticmethod
+    def foreign_entries(out: Path) -> list[str]:
+        """Names in the run folder ``out`` that its run did not write (a user's notes, a sweep's results), by the
+        list of entries the run left there (``MANIFEST``; none for folders made before it: nothing is foreign).
+        ``DERIVED`` entries (figures made from the run) are replaced with it and never foreign."""
+        try:
+            written = set((out / MANIFEST).read_text(encoding="utf-8").splitlines())
+        except (OSError, UnicodeDecodeError):
+            return []
+        return sorted(p.name for p in out.iterdir() if p.name not in written | {MANIFEST, *DERIVED})
+
     def commit(self) -> None:
         """Replace ``out`` by the temporary folder (the previous contents are removed)."""
+        (self.tmp / MANIFEST).write_text("".join(f"{p.name}\n" for p in sorted(self.tmp.iterdir())), encoding="utf-8")
         old = self.out.parent / f".{self.out.name}.old-{os.getpid()}"
         try:
             if self.out.exists():

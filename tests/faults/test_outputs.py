@@ -112,3 +112,17 @@ def test_an_out_folder_that_holds_the_runs_input_is_refused(tmp_path):
     one_line_error(cli("run", "--carmen", inside, "--out", out, "--cache-dir", tmp_path / "c", "--method", "proposed",
                        "--set", "output.plots=false"), "an input of this run")
     assert (out / "room.log").is_file() and (out / "metrics.json").is_file()
+
+
+def test_a_rerun_refuses_to_delete_files_added_to_its_folder(case1_drive, tmp_path):
+    """A re-run replaces its own outputs and the figures made from them, never a file someone added."""
+    args = run_args(case1_drive, tmp_path / "r", tmp_path / "c", "--method", "proposed", "--frames", "0:10")
+    assert cli(*args).exit_code == 0
+    (tmp_path / "r" / "figures").mkdir()                       # `featmap figures` writes here by default
+    (tmp_path / "r" / "figures" / "fig.png").write_bytes(b"x")
+    (tmp_path / "r" / "notes.txt").write_text("mine")
+    one_line_error(cli(*args), "holds notes.txt, which the run that made the folder did not write")
+    assert (tmp_path / "r" / "notes.txt").read_text() == "mine"
+    (tmp_path / "r" / "notes.txt").unlink()
+    assert cli(*args).exit_code == 0
+    assert not (tmp_path / "r" / "figures").exists()          # stale figures go with the run they were made from

@@ -7,6 +7,7 @@ from featmap.cli import app
 from featmap.pipeline.config import load_config
 from featmap.io.segments_csv import SegmentTable, read_fused_csv, write_segments_csv
 from featmap.simulation.segments import observe_walls
+from featmap.pipeline.run_folder import MANIFEST
 
 runner = CliRunner()
 
@@ -89,7 +90,7 @@ def test_a_second_fusion_replaces_the_folder_whole_and_never_a_run_folder(tmp_pa
     res = runner.invoke(app, ["fuse", str(seg), "--method", "proposed", "--out", str(out),
                               "--set", "fusion.meanshift.center_bandwidth_m=50"])
     assert res.exit_code == 0, res.output
-    assert sorted(p.name for p in out.iterdir()) == ["config.yaml", "fuse.json", "fused_proposed.csv"]
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST, "config.yaml", "fuse.json", "fused_proposed.csv"]
     # a folder holding anything else (a run folder, say), or the input itself, is left alone
     run = tmp_path / "run"
     run.mkdir()

@@ -13,6 +13,7 @@ from featmap.errors import DatasetError
 from featmap.io.run_metrics import read_run_metrics
 from featmap.pipeline import MappingPipeline, SegmentStore, load_config
 from featmap.reporting import RecordingReporter
+from featmap.pipeline.run_folder import MANIFEST
 
 runner = CliRunner()
 
@@ -45,7 +46,7 @@ def test_run_writes_the_output_contract_and_scores_against_truth(run_case1, tmp_
     assert saved.methods["proposed"].count <= proposed["observable_walls"] + 1
     # the report names exactly the files written (plots are off here)
     assert "map_overview.png" not in result.files and not (out / "map_overview.png").exists()
-    assert sorted(result.files) == sorted(p.name for p in out.iterdir())
+    assert sorted([*result.files, MANIFEST]) == sorted(p.name for p in out.iterdir())
 
 
 def test_refusing_never_reextracts_and_an_interrupted_run_resumes(run_case1, tmp_path):

@@ -2,7 +2,7 @@
 
 import pytest
 
-from featmap.pipeline.run_folder import RunFolder, RunFolderError
+from featmap.pipeline.run_folder import MANIFEST, RunFolder, RunFolderError
 
 
 def test_commit_replaces_the_folder_whole(tmp_path):
@@ -14,7 +14,7 @@ def test_commit_replaces_the_folder_whole(tmp_path):
         (folder.tmp / "metrics.json").write_text("new")
         assert (out / "metrics.json").read_text() == "old"          # nothing changes before the commit
         folder.commit()
-    assert sorted(p.name for p in out.iterdir()) == ["metrics.json"] and (out / "metrics.json").read_text() == "new"
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST, "metrics.json"] and (out / "metrics.json").read_text() == "new"
     assert sorted(p.name for p in tmp_path.iterdir()) == [".run.lock", "run"]
 
 
