@@ -58,10 +58,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from featmap import __version__
 from featmap.config import read_yaml_mapping
 from featmap.datasets import SourceSpec
+from featmap.datasets.base import parse_frames
 from featmap.errors import ConfigError, FeatmapError, InputFileError
 from featmap.io.batch_records import (BatchSummary, DriveKey, DriveRecord, MergedDrive, MergedRecord,
                                       read_drive_key, write_batch_summary, write_drive_key, write_merged_record)
 from featmap.pipeline.config import load_config
+from featmap.pipeline.run_folder import check_folder_path
 from featmap.reporting import NullReporter, RecordingReporter, Reporter
 
 KEY_FILE = "batch.json"
@@ -97,6 +99,13 @@ class DriveEntry(BaseModel):
             raise ValueError("'location' goes with 'dataset'")
         if self.data_dir is not None and self.kitti is None:
             raise ValueError("'data_dir' goes with 'kitti'")
+        if self.frames is not None:
+            try:
+                parse_frames(self.frames)
+            except FeatmapError as exc:
+                raise ValueError(f"'frames': {str(exc).removeprefix('--frames ')}") from None
+        if self.skip_bad_scans and self.dataset == "carmen":
+            raise ValueError("'skip_bad_scans' leaves out unreadable scan files; a CARMEN log is read whole")
         return self
 
 
@@ -267,6 +276,7 @@ def plan_batch(path: str | Path, out: str | Path | None = None, config: str | Pa
         methods = tuple(resolve_methods(spec.methods))
     except ConfigError as exc:
         raise ConfigError(f"{path}: methods: {exc}") from None
+    check_folder_path(Path(out or spec.out or Path("runs") / "batch" / path.stem), "--out" if out else f"{path}: out")
     out = Path(out or spec.out or Path("runs") / "batch" / path.stem).absolute()
     cache_dir = str(Path(spec.cache_dir).expanduser().absolute())
     sim_root = Path(spec.sim_root).expanduser().absolute()
@@ -1044,5 +1054,7 @@ def connect(scheduler: str | None, workers: int | None = None, timeout_s: float 
             return Client(scheduler, timeout=f"{timeout_s}s"), None
         except (OSError, TimeoutError) as exc:
             raise ConfigError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+        except (ValueError, TypeError) as exc:     # distributed's address parser: no port, unknown scheme
+            raise ConfigError(f"--scheduler {scheduler}: not a scheduler address such as tcp://HOST:8786 ({exc})") from None
     cluster = local_cluster(workers)
     return Client(cluster), cluster

@@ -123,7 +123,7 @@ def fuse(
     fuse_and_write(table, methods, cfg, out, _reporter(), source=segments_csv)
 
 
-def source_spec(drive: str | None, data_dir: Path, world: str | None, dataset: str | None, source: str | None,
+def source_spec(drive: str | None, data_dir: Path | None, world: str | None, dataset: str | None, source: str | None,
                 carmen: Path | None, frames: str | None, skip_bad_scans: bool):
     """The scan source the flags of ``featmap run`` name (the embedded simulated drive by default)."""
     from featmap.datasets import SourceSpec
@@ -133,6 +133,8 @@ def source_spec(drive: str | None, data_dir: Path, world: str | None, dataset: s
                                       ("--carmen", carmen)) if value]
     if len(given) > 1:
         _fail(f"{' and '.join(given)}: give one source")
+    if data_dir is not None and drive is None:
+        _fail(f"--data-dir {data_dir}: give --drive YYYY_MM_DD_drive_NNNN with it (it is where KITTI drives are)")
     if carmen is not None:
         return SourceSpec("carmen", str(carmen), frames, skip_bad_scans)
     if dataset is not None:
@@ -142,14 +144,14 @@ def source_spec(drive: str | None, data_dir: Path, world: str | None, dataset: s
     if source is not None:
         _fail("--source: give --dataset NAME with it")
     if drive is not None:
-        return SourceSpec("kitti_raw", str(drive_folder(data_dir, drive)), frames, skip_bad_scans)
+        return SourceSpec("kitti_raw", str(drive_folder(data_dir or Path("data/kitti"), drive)), frames, skip_bad_scans)
     return SourceSpec("simulated", world or "residential", frames, skip_bad_scans)
 
 
 @command
 def run(
     drive: Optional[str] = typer.Option(None, "--drive", "-d", help="KITTI raw drive YYYY_MM_DD_drive_NNNN (with --data-dir)."),
-    data_dir: Path = typer.Option(Path("data/kitti"), "--data-dir", help="KITTI raw root holding YYYY_MM_DD/ folders."),
+    data_dir: Optional[Path] = typer.Option(None, "--data-dir", help="KITTI raw root holding YYYY_MM_DD/ folders (with --drive; default data/kitti)."),
     world: Optional[str] = typer.Option(None, "--world", "-w", help="A simulated world (built-in name or file), simulated on first use; the default is residential."),
     dataset: Optional[str] = typer.Option(None, "--dataset", help="Any registered scan format (see featmap datasets), with --source."),
     source: Optional[str] = typer.Option(None, "--source", help="Location of the --dataset source (a folder or file)."),
@@ -275,7 +277,6 @@ def figures(
     set_: Optional[List[str]] = SetOpt,
 ):
     """Write the paper's figures (2-3, 6-11, 13-14) for one run (its Tables 1-3: featmap compare)."""
-    from featmap.config import read_yaml_mapping
     from featmap.outputs import tiles_of
     from featmap.pipeline.config import config_from_dict, load_config
     from featmap.pipeline.run_folder import load_run
@@ -286,7 +287,14 @@ def figures(
         from featmap.config import apply_overrides
         from featmap.pipeline.config import FeatmapConfig
 
-        base = read_yaml_mapping(config) if config is not None else load_config(run_dir / "config.yaml").model_dump(mode="json")
+        if tiles is not None:
+            from featmap.outputs import OutputConfig
+
+            try:
+                OutputConfig(tile_source=tiles)
+            except ValueError as exc:
+                _fail(f"--tiles {tiles}: {exc.errors()[0]['msg'].removeprefix('Value error, ')}")
+        base = load_config(config if config is not None else run_dir / "config.yaml").model_dump(mode="json")
         overrides = list(set_ or []) + ([f"output.tile_source={tiles}"] if tiles is not None else [])
         cfg = config_from_dict(apply_overrides(base, overrides, FeatmapConfig), str(config or run_dir / "config.yaml"))
     run_data = load_run(run_dir, cfg)

@@ -168,6 +168,11 @@ def yaml_error_line(exc: Exception) -> str:
     return f":{mark.line + 1}" if mark is not None else ""
 
 
+def yaml_problem(exc: Exception) -> str:
+    """What is wrong in a YAML error, on one line (PyYAML's reader errors span several)."""
+    return " ".join(str(getattr(exc, "problem", None) or exc).split())
+
+
 def read_yaml_mapping(path: str | Path) -> dict[str, Any]:
     """Read a YAML file that must hold a mapping; a one-line ConfigError otherwise."""
     path = Path(path)
@@ -184,7 +189,7 @@ def read_yaml_mapping(path: str | Path) -> dict[str, Any]:
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}{yaml_error_line(exc)}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+        raise ConfigError(f"{path}{yaml_error_line(exc)}: not valid YAML ({yaml_problem(exc)})") from None
     if data is None:
         return {}
     if not isinstance(data, dict):

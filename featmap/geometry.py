@@ -8,6 +8,14 @@ from __future__ import annotations
 
 import numpy as np
 
+MAX_COORDINATE_M = 1e12
+"""Coordinates are metres of a local or projected frame (UTM northings stay below 1e7; float64 keeps 0.1 mm
+here). Readers refuse larger ones."""
+
+MAX_MAP_SPAN_M = 2.0e7
+"""No map of the Earth's surface spans more than this (metres; half the Earth's circumference). Readers refuse
+a wider one: one position is wrong, and the fusion's grids and samples over that span would not fit in memory."""
+
 
 def as_segments(segments) -> np.ndarray:
     """Return ``segments`` as a float64 (N, 4) array (an empty input gives shape (0, 4))."""

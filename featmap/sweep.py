@@ -54,6 +54,7 @@ from featmap.fusion import FUSION_METHODS, fuse
 from featmap.io.segments_csv import SegmentTable
 from featmap.pipeline.config import FeatmapConfig, config_from_dict, resolve_config_path
 from featmap.pipeline.executor import Executor, SerialExecutor
+from featmap.pipeline.run_folder import check_folder_path
 from featmap.reporting import NullReporter, Reporter, track
 
 METRICS = ("count", "count_ratio", "precision", "precision_any", "recall", "redundancy", "compression", "offset_cm",
@@ -298,6 +299,7 @@ def _read_log(log: Path, identity: dict, out: Path) -> dict[str, dict]:
 def run_sweep(combos: list[Combination], configs: dict[str, FeatmapConfig], inputs: SweepInputs, out: Path,
               identity: dict, executor: Executor = SerialExecutor(), reporter: Reporter = NullReporter()) -> list[dict]:
     """Evaluate every combination (resuming from ``out/results.jsonl``); returns one row per combination."""
+    check_folder_path(out)
     out.mkdir(parents=True, exist_ok=True)
     log = out / "results.jsonl"
     done = _read_log(log, identity, out) if log.exists() else {}

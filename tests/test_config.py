@@ -97,5 +97,7 @@ def test_config_file_that_is_not_utf8_or_is_a_folder(tmp_path):
 
 
 def test_a_name_that_yaml_reads_as_a_boolean_stays_a_name():
-    assert load_config(None, ["output.tile_source=no"]).output.tile_source == "no"
+    with pytest.raises(ConfigError, match="unknown tile source 'no'"):      # read as the name 'no', not False
+        load_config(None, ["output.tile_source=no"])
+    assert load_config(None, ["output.tile_source=https://127.0.0.1/{z}/{x}/{y}.png"]).output.tile_source.startswith("https")
     assert load_config(None, ["output.plots=no"]).output.plots is False       # a boolean where one is meant

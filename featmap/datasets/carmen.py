@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from featmap.datasets.base import FrameSource, Scan, SourceNotes, select_frames
+from featmap.errors import ConfigError
 from featmap.io.carmen import read_carmen
 
 SUFFIXES = (".gz", ".bz2", ".log", ".clf")
@@ -69,5 +70,9 @@ class CarmenSource(FrameSource):
 
 def open_log(location: str | Path, frames: str | None = None, skip_bad_scans: bool = False,
              reporter=None) -> CarmenSource:
-    """The registry's opener (a CARMEN log has no per-scan files to skip)."""
+    """The registry's opener. A CARMEN log is one file read whole: there are no per-scan files to skip, so
+    ``skip_bad_scans`` is refused (a bad record is reported with its line number, to fix or delete)."""
+    if skip_bad_scans:
+        raise ConfigError(f"{location}: --skip-bad-scans (skip_bad_scans) leaves out unreadable scan files of a "
+                          "drive; a CARMEN log is read whole, and a bad record is reported with its line to fix")
     return CarmenSource(location, frames)

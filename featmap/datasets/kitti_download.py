@@ -12,6 +12,7 @@ import json
 import os
 import shutil
 import urllib.error
+import urllib.parse
 import urllib.request
 import zipfile
 from pathlib import Path
@@ -132,11 +133,32 @@ def download_drive(drive: str, data_dir: str | Path, base_url: str = KITTI_RAW_B
     """Fetch, verify and unpack a drive's ``_sync.zip`` and its date's calibration zip into ``data_dir``.
 
     A zip whose files are all still unpacked (``is_unpacked``) is not fetched again. Returns the zips
-    fetched now."""
+    fetched now. Raises DownloadError for a ``base_url`` that is not http(s) or a ``data_dir`` under a file;
+    folders it made are removed again when they stay empty (a failed download)."""
+    data_dir = Path(data_dir)
+    if urllib.parse.urlparse(base_url).scheme not in ("http", "https"):
+        raise DownloadError(f"--base-url {base_url}: not an http:// or https:// address")
+    for folder in (data_dir, *data_dir.parents):
+        if folder.exists():
+            if not folder.is_dir():
+                raise DownloadError(f"--data-dir {data_dir}: {folder} exists and is not a folder")
+            break
+    made = [p for p in (data_dir, *data_dir.parents) if not p.exists()]
+    zips = data_dir / "zips"
+    try:
+        return _download(drive, data_dir, zips, base_url, progress_factory, keep_zips)
+    finally:                                 # no empty folders left behind by a failed download
+        for folder in (zips, *made):
+            try:
+                folder.rmdir()
+            except OSError:
+                pass
+
+
+def _download(drive: str, data_dir: Path, zips: Path, base_url: str,
+              progress_factory: Callable[[str], Progress] | None, keep_zips: bool) -> list[Path]:
     from featmap.io.atomic import atomic_write_text
 
-    data_dir = Path(data_dir)
-    zips = data_dir / "zips"
     out = []
     for url in drive_urls(drive, base_url):
         dest = zips / url.rsplit("/", 1)[-1]
@@ -150,6 +172,4 @@ def download_drive(drive: str, data_dir: str | Path, base_url: str = KITTI_RAW_B
         out.append(dest)
         if not keep_zips:
             dest.unlink()
-    if not keep_zips and zips.exists() and not any(zips.iterdir()):
-        zips.rmdir()
     return out

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from featmap.config import yaml_problem
 from featmap.errors import InputFileError
 from featmap.evaluation.truth_metrics import lies_on
 
@@ -168,7 +169,7 @@ def read_wall_lists(path: str | Path) -> WallLists:
     except FileNotFoundError:
         raise InputFileError(path, "wall list not found") from None
     except yaml.YAMLError as exc:
-        raise InputFileError(path, f"not valid YAML ({getattr(exc, 'problem', exc)})") from None
+        raise InputFileError(path, f"not valid YAML ({yaml_problem(exc)})") from None
     if not isinstance(data, dict) or not isinstance(data.get("scans"), dict):
         raise InputFileError(path, "expected a mapping with 'scans: {scan path: {walls, optional, clutter, max_unlisted}}'")
     scans = {}

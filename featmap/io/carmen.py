@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from featmap.errors import InputFileError
+from featmap.geometry import MAX_COORDINATE_M
 
 NO_RETURN_MARGIN_M = 0.1
 """Readings within this of a FLASER log's maximum range are no-returns (51.05 and 51.1 m in fhw)."""
@@ -191,6 +192,13 @@ def _numbers(path, lineno: int, tokens: list[str], what: str) -> np.ndarray:
     return values
 
 
+def _check_positions(path, lineno: int, xy: np.ndarray, what: str) -> None:
+    """Pose coordinates (metres) beyond ``MAX_COORDINATE_M`` fail (the geometry would overflow)."""
+    if np.abs(xy).max(initial=0.0) > MAX_COORDINATE_M:
+        raise InputFileError(path, f"{what}: pose coordinate {np.abs(xy).max():.3g} m is beyond {MAX_COORDINATE_M:g} m "
+                                   "(poses are metres in the log's frame)", lineno)
+
+
 def _is_number(text: str) -> bool:
     try:
         float(text)
@@ -218,6 +226,7 @@ def _parse_flaser(path, lineno: int, tokens: list[str]) -> dict:
         raise InputFileError(path, f"FLASER with {n} beams needs at least {need - 1} values after the type, "
                                    f"got {len(tokens) - 1}", lineno)
     values = _numbers(path, lineno, tokens[2:need], "FLASER")
+    _check_positions(path, lineno, values[[n, n + 1, n + 3, n + 4]], "FLASER")
     logger = _optional_float(tokens, need + 1)
     return dict(ranges=values[:n], angles=carmen_beam_angles(n), max_range=None, pose=values[n:n + 3],
                 odometry=values[n + 3:n + 6], timestamp=values[n + 6], logger_timestamp=logger,
@@ -244,6 +253,7 @@ def _parse_robotlaser(path, lineno: int, tokens: list[str]) -> dict:
         raise InputFileError(path, f"ROBOTLASER1 with {n} beams and {m} remissions has too few values "
                                    f"({len(tokens) - 1})", lineno)
     tail = _numbers(path, lineno, tokens[start:need], "ROBOTLASER1")
+    _check_positions(path, lineno, tail[[0, 1, 3, 4]], "ROBOTLASER1")
     angles = header[1] + header[3] * np.arange(n)
     return dict(ranges=ranges, angles=angles, max_range=float(header[4]), pose=tail[0:3], odometry=tail[3:6],
                 timestamp=tail[11], logger_timestamp=_optional_float(tokens, need + 1), line=lineno,
@@ -254,7 +264,9 @@ def _parse_odom(path, lineno: int, tokens: list[str]) -> np.ndarray:
     if len(tokens) < 8:
         raise InputFileError(path, f"ODOM needs at least 7 values (x y theta tv rv accel timestamp), "
                                    f"got {len(tokens) - 1}", lineno)
-    return _numbers(path, lineno, tokens[1:8], "ODOM")
+    values = _numbers(path, lineno, tokens[1:8], "ODOM")
+    _check_positions(path, lineno, values[:2], "ODOM")
+    return values
 
 
 def _optional_float(tokens: list[str], index: int) -> float:

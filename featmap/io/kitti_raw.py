@@ -24,6 +24,8 @@ from featmap.io.atomic import atomic_write_bytes, atomic_write_text
 OXTS_FIELDS = ("lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az",
                "af", "al", "au", "wx", "wy", "wz", "wf", "wl", "wu", "pos_accuracy", "vel_accuracy",
                "navstat", "numsats", "posmode", "velmode", "orimode")
+MAX_RETURN_M = 10_000.0
+"""No LiDAR return lies farther than this from its sensor (metres): a file with such points is not a scan."""
 CALIB_FILES = ("calib_imu_to_velo.txt", "calib_velo_to_cam.txt", "calib_cam_to_cam.txt")
 TIMESTAMP_FORMAT = "%Y-%m-%d %H:%M:%S.%f"
 
@@ -63,6 +65,10 @@ def read_velo_bin(path: str | Path, allow_empty: bool = False) -> np.ndarray:
     if not np.isfinite(points).all():
         bad = int((~np.isfinite(points).all(axis=1)).sum())
         raise DatasetError(f"{path}: {bad} point(s) with NaN or inf coordinates")
+    far = np.abs(points[:, :3]).max(axis=1) > MAX_RETURN_M if len(points) else np.zeros(0, bool)
+    if far.any():
+        raise DatasetError(f"{path}: {int(far.sum())} point(s) farther than {MAX_RETURN_M:.0f} m from the sensor: "
+                           "not a velodyne scan (x, y, z, reflectance as float32)?")
     return points
 
 
@@ -94,6 +100,10 @@ def read_oxts_packet(path: str | Path) -> dict[str, float]:
         raise DatasetError(f"{path}: OXTS packet has a non-numeric field") from None
     if not np.isfinite(values).all():
         raise DatasetError(f"{path}: OXTS packet has NaN or inf values")
+    lat, lon = values[0], values[1]
+    if not (-90.0 < lat < 90.0 and -180.0 <= lon <= 180.0):
+        raise DatasetError(f"{path}: OXTS latitude {lat:g} / longitude {lon:g} out of range "
+                           "(-90 < lat < 90, -180 <= lon <= 180 degrees)")
     return dict(zip(OXTS_FIELDS, values))
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from featmap.errors import InputFileError
+from featmap.geometry import MAX_COORDINATE_M, MAX_MAP_SPAN_M
 from featmap.io.atomic import atomic_write_text
 
 SEGMENT_COLUMNS = ("scan", "x1", "y1", "x2", "y2")
@@ -158,16 +159,22 @@ def _first_occurrences(scan: np.ndarray, segments: np.ndarray) -> np.ndarray:
     return first
 
 
-MAX_COORDINATE_M = 1e12
-"""Coordinates are metres of a local or projected frame (UTM northings stay below 1e7; float64 keeps 0.1 mm here)."""
-
-
 def _check_extent(path: Path, segments: np.ndarray) -> None:
-    """A one-line error for a coordinate beyond ``MAX_COORDINATE_M`` (the geometry would overflow)."""
-    far = np.flatnonzero(np.abs(segments).max(axis=1, initial=0.0) > MAX_COORDINATE_M) if len(segments) else []
+    """A one-line error for a coordinate beyond ``MAX_COORDINATE_M`` (the geometry would overflow), or for
+    segments spanning more than ``MAX_MAP_SPAN_M`` (no map of the Earth is that large: one row is wrong)."""
+    if not len(segments):
+        return
+    far = np.flatnonzero(np.abs(segments).max(axis=1) > MAX_COORDINATE_M)
     if len(far):
         raise InputFileError(path, f"a coordinate beyond {MAX_COORDINATE_M:g} m ({np.abs(segments[far[0]]).max():g}); "
                                    "coordinates are metres of a local or projected frame")
+    ends = segments.reshape(-1, 2)
+    span = float((ends.max(axis=0) - ends.min(axis=0)).max())
+    if span > MAX_MAP_SPAN_M:
+        offset = np.abs(segments.reshape(-1, 2, 2) - np.median(ends, axis=0)).max(axis=(1, 2))
+        raise InputFileError(path, f"the segments span {span:.3g} m, more than any map of the Earth "
+                                   f"({MAX_MAP_SPAN_M:g} m); the farthest from the others is data row "
+                                   f"{int(np.argmax(offset)) + 1} ({offset.max():.3g} m away)")
 
 
 def read_segments_csv(path: str | Path) -> SegmentTable:

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from featmap.config import Section
 from featmap.fusion import FusionResult
@@ -26,6 +26,22 @@ class OutputConfig(Section):
     tile_source: str = Field("OpenStreetMap.Mapnik", description="basemap: an xyzservices name or a {z}/{x}/{y} URL template")
     tile_cache_dir: str = Field("~/.cache/featmap/tiles", description="on-disk cache of fetched map tiles")
     tile_timeout_s: float = Field(5.0, gt=0, description="give up on the basemap after this many seconds")
+
+    @field_validator("tile_source")
+    @classmethod
+    def _known_tile_source(cls, value: str) -> str:
+        """An unknown provider name is a mistake to report at once (an unreachable server is not: it falls back)."""
+        if "{" in value:
+            return value
+        import xyzservices.providers as xyz
+
+        node = xyz
+        for part in value.split("."):
+            if part not in node:
+                raise ValueError(f"unknown tile source {value!r}: an xyzservices name such as OpenStreetMap.Mapnik, "
+                                 "or a URL template with {z}/{x}/{y}")
+            node = node[part]
+        return value
 
 
 @dataclass(frozen=True)

@@ -117,3 +117,18 @@ def test_corrupt_and_missing_downloads_fail_clearly(server, tmp_path):
     with pytest.raises(DownloadError, match="cannot connect"):
         download_drive(DRIVE, tmp_path / "k3", base_url="http://127.0.0.1:9")
     shutil.rmtree(tmp_path / "k1", ignore_errors=True)
+
+
+def test_bad_base_urls_and_data_dirs_fail_before_anything_is_made(tmp_path):
+    with pytest.raises(DownloadError, match="--base-url notaurl: not an http:// or https:// address"):
+        download_drive(DRIVE, tmp_path / "kitti", base_url="notaurl")
+    (tmp_path / "afile").write_text("keep")
+    with pytest.raises(DownloadError, match="--data-dir .*afile exists and is not a folder"):
+        download_drive(DRIVE, tmp_path / "afile" / "kitti", base_url="http://127.0.0.1:9")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
+def test_a_failed_download_leaves_no_empty_folders(tmp_path):
+    with pytest.raises(DownloadError, match="cannot connect"):
+        download_drive(DRIVE, tmp_path / "new" / "kitti", base_url="http://127.0.0.1:9")
+    assert not (tmp_path / "new").exists()

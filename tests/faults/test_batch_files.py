@@ -39,6 +39,10 @@ def batch(tmp_path, tiny_worlds):
     ("methods: [proposed, fastest]\ndrives:\n  - world: WORLDS/tiny.yaml\n", "b.yaml: methods: unknown method 'fastest'"),
     ("workers: 0\ndrives:\n  - world: WORLDS/tiny.yaml\n", "b.yaml: workers: Input should be greater than or equal to 1"),
     ("drives:\n  - world: WORLDS/tiny.yaml\n    config: /nonexistent.yaml\n", "/nonexistent.yaml: config file not found"),
+    ("drives:\n  - world: WORLDS/tiny.yaml\n    frames: 'x:y'\n", "drives[0]: 'frames': 'x:y': expected integers"),
+    ("drives:\n  - dataset: carmen\n    location: WORLDS/tiny.yaml\n    skip_bad_scans: true\n",
+     "'skip_bad_scans' leaves out unreadable scan files; a CARMEN log is read whole"),
+    ("out: WORLDS/tiny.yaml\ndrives:\n  - world: WORLDS/tiny.yaml\n", "b.yaml: out"),
     ("drives: [\n", "b.yaml:2: not valid YAML"),
     ("- world: residential\n", "b.yaml: expected a mapping of sections"),
 ])
@@ -46,7 +50,7 @@ def test_bad_batch_files(batch, tmp_path, tiny_worlds, text, needle):
     copy = tiny_worlds.parent / "tiny_worlds_copy"                # another world file named tiny.yaml
     copy.mkdir(exist_ok=True)
     (copy / "tiny.yaml").write_text((tiny_worlds / "tiny.yaml").read_text().replace("height: 8", "height: 12"))
-    res = cli("batch", batch(text), "--out", tmp_path / "out")
+    res = cli("batch", batch(text), *([] if text.startswith("out:") else ["--out", tmp_path / "out"]))
     one_line_error(res, needle)
     assert not (tmp_path / "out").exists()
 
@@ -65,6 +69,35 @@ def test_an_unreachable_scheduler_is_one_line():
 
     with pytest.raises(ConfigError, match=r"--scheduler tcp://127.0.0.1:9: cannot connect"):
         connect("tcp://127.0.0.1:9", timeout_s=1)
+
+
+@pytest.mark.parametrize("address", ["notanaddress", "http://127.0.0.1:1"])
+def test_a_malformed_scheduler_address_is_one_line(address):
+    from featmap.batch import connect
+    from featmap.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=f"--scheduler {address}: not a scheduler address"):
+        connect(address, timeout_s=1)
+
+
+def test_an_out_that_is_a_file(tmp_path, batch, segments_file):
+    (tmp_path / "afile").write_text("keep")
+    one_line_error(cli("batch", batch("drives:\n  - world: WORLDS/tiny.yaml\n"), "--out", tmp_path / "afile"),
+                   f"--out {tmp_path / 'afile'}: {tmp_path / 'afile'} exists and is not a folder")
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(f"input: {segments_file}\nmethods: [proposed]\ngrid:\n  fusion.proposed.eta_m: [0.3]\n")
+    one_line_error(cli("sweep", sweep, "--out", tmp_path / "afile"), "--out")
+    assert (tmp_path / "afile").read_text() == "keep"
+
+
+@pytest.fixture
+def segments_file(tmp_path):
+    import numpy as np
+
+    from featmap.io.segments_csv import SegmentTable, write_segments_csv
+
+    segs = np.array([[0.0, 0.0, 10.0, 0.0], [0.0, 0.02, 10.0, 0.02]])
+    return write_segments_csv(tmp_path / "segments.csv", SegmentTable(scan=np.array([0, 1]), segments=segs))
 
 
 def test_bad_sweep_over_a_batch(tmp_path):

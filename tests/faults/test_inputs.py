@@ -194,3 +194,78 @@ def test_simulate_flags(tmp_path):
     one_line_error(cli("simulate", "--out", tmp_path / "s", "--sensor", "hdl32"), "--sensor 'hdl32'")
     one_line_error(cli("simulate", "--out", tmp_path / "s", "--pose-noise", "big"), "--pose-noise 'big'")
     assert not (tmp_path / "s").exists()
+
+
+def test_segments_spanning_more_than_any_map_of_the_earth(tmp_path, segments_csv):
+    """One row a billion metres off: a one-line error naming the row, not a fusion that needs 30 GB."""
+    lines = segments_csv.read_text().splitlines()
+    scan, x1, y1, x2, y2 = lines[3].split(",")[:5]
+    lines[3] = ",".join([scan, str(float(x1) + 1e9), y1, str(float(x2) + 1e9), y2])
+    (tmp_path / "wide.csv").write_text("\n".join(lines) + "\n")
+    one_line_error(cli("fuse", tmp_path / "wide.csv", "--out", tmp_path / "o"), "the farthest from the others is data row 3")
+    assert not (tmp_path / "o").exists()
+
+
+def test_oxts_positions_off_the_earth(drive_copy, tmp_path):
+    root, drive = drive_copy
+    packet = root / drive[:10] / f"{drive}_sync" / "oxts" / "data" / "0000000004.txt"
+    fields = packet.read_text().split()
+    args = ["run", "--drive", drive, "--data-dir", root, "--out", tmp_path / "r", "--cache-dir", tmp_path / "c"]
+    for k, value, needle in ((0, "95", "latitude 95"), (1, "500", "longitude 500")):
+        packet.write_text(" ".join(fields[:k] + [value] + fields[k + 1:]) + "\n")
+        one_line_error(cli(*args), f"0000000004.txt: OXTS {needle}" if k == 0 else "out of range")
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_text_file_named_like_a_scan(drive_copy, tmp_path):
+    root, drive = drive_copy
+    scan = root / drive[:10] / f"{drive}_sync" / "velodyne_points" / "data" / "0000000003.bin"
+    scan.write_bytes(b"this is not a velodyne scan!!!!!")           # 32 bytes: two 'points' of text
+    one_line_error(cli("run", "--drive", drive, "--data-dir", root, "--out", tmp_path / "r", "--cache-dir",
+                       tmp_path / "c"), "0000000003.bin: 2 point(s) farther than 10000 m")
+
+
+def test_a_data_dir_without_a_drive(tmp_path):
+    one_line_error(cli("run", "--data-dir", tmp_path, "--out", tmp_path / "r"), "--data-dir")
+    assert not (tmp_path / "r").exists()
+
+
+def test_skip_bad_scans_on_a_carmen_log_is_refused(tmp_path):
+    from tests.conftest import write_room_log
+
+    log = write_room_log(tmp_path / "room.log", np.random.default_rng(0), n_scans=8)
+    one_line_error(cli("run", "--carmen", log, "--out", tmp_path / "r", "--skip-bad-scans"), "a CARMEN log is read whole")
+
+
+def test_carmen_poses_beyond_any_map(tmp_path):
+    from tests.conftest import write_room_log
+
+    log = write_room_log(tmp_path / "room.log", np.random.default_rng(0), n_scans=8)
+    lines = log.read_text().splitlines()
+    k = next(i for i, line in enumerate(lines) if line.startswith("FLASER"))
+    tokens = lines[k].split()
+    n = int(tokens[1])
+    for value, needle in (("1e30", f"room.log:{k + 1}: FLASER: pose coordinate 1e+30 m is beyond"),
+                          ("1e9", "frame 0: pose at")):
+        tokens[2 + n] = value
+        lines[k] = " ".join(tokens)
+        log.write_text("\n".join(lines) + "\n")
+        one_line_error(cli("run", "--carmen", log, "--out", tmp_path / "r", "--set", "output.plots=false"), needle)
+    assert not (tmp_path / "r").exists()
+
+
+def test_figures_take_presets_and_refuse_an_unknown_tile_source(case1_drive, tmp_path):
+    run = _fused_run(case1_drive, tmp_path)
+    one_line_error(cli("figures", run, "--tiles", "notaurl", "--out", tmp_path / "f"), "--tiles notaurl: unknown tile source")
+    assert not (tmp_path / "f").exists()
+    res = cli("figures", run, "--config", "paper", "--set", "output.tile_source=http://127.0.0.1:9/{z}/{x}/{y}.png",
+              "--set", "output.tile_timeout_s=0.5", "--out", tmp_path / "f")
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "f" / "fig06_cluster_fusion.png").exists()
+
+
+def test_a_yaml_file_with_a_nul_byte_is_one_line(tmp_path, segments_csv):
+    (tmp_path / "nul.yaml").write_bytes(b"fusion:\x00\n")
+    res = cli("fuse", segments_csv, "--config", tmp_path / "nul.yaml", "--out", tmp_path / "o")
+    one_line_error(res, "not valid YAML")
+    assert len([line for line in res.output.splitlines() if line.strip()]) == 1, res.output
