@@ -242,13 +242,19 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
         progress: wraps the frame loop, e.g. ``lambda it, n: rich.progress.track(it, total=n)``.
         scan_observations: also write ``truth/observations.npz``, what each scan saw of each wall.
     """
-    _, final_dir = drive_paths(Path(out_root), SIM_DATE, drive_id)
+    calib_dir, final_dir = drive_paths(Path(out_root), SIM_DATE, drive_id)
     partial = final_dir.parent / f".{final_dir.name}.partial"
+    made = [p for p in (calib_dir, *calib_dir.parents) if not p.exists()]
     try:
         return _simulate_drive(world, out_root, sensor, n_frames, noise_m, dropout, pose_noise, seed, drive_id,
                                truth_range_m, progress, scan_observations, pose_noise_tau_s)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)      # a failed simulation leaves nothing that looks like a drive
+        for folder in made:                             # nor the empty folders it made (innermost first)
+            try:
+                folder.rmdir()
+            except OSError:
+                break
         raise
 
 

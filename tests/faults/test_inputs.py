@@ -269,3 +269,17 @@ def test_a_yaml_file_with_a_nul_byte_is_one_line(tmp_path, segments_csv):
     res = cli("fuse", segments_csv, "--config", tmp_path / "nul.yaml", "--out", tmp_path / "o")
     one_line_error(res, "not valid YAML")
     assert len([line for line in res.output.splitlines() if line.strip()]) == 1, res.output
+
+
+def test_an_interrupted_simulation_leaves_no_folders(tmp_path):
+    """Ctrl-C while ray casting (after the drive's folders were made): no partial drive, no empty folders."""
+    from featmap.simulation.sensors import SENSORS
+    from featmap.simulation.simulate import simulate_drive
+    from featmap.simulation.worlds import load_world
+
+    def interrupted(frames, n):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        simulate_drive(load_world("prescan_case1"), tmp_path / "sim", SENSORS["hdl64"], 3, progress=interrupted)
+    assert not (tmp_path / "sim").exists()
