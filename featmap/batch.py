@@ -276,8 +276,9 @@ def plan_batch(path: str | Path, out: str | Path | None = None, config: str | Pa
         methods = tuple(resolve_methods(spec.methods))
     except ConfigError as exc:
         raise ConfigError(f"{path}: methods: {exc}") from None
-    check_folder_path(Path(out or spec.out or Path("runs") / "batch" / path.stem), "--out" if out else f"{path}: out")
-    out = Path(out or spec.out or Path("runs") / "batch" / path.stem).absolute()
+    folder = Path(out or spec.out or Path("runs") / "batch" / path.stem)
+    check_folder_path(folder, "--out" if out else f"{path}: out")
+    out = folder.absolute()
     cache_dir = str(Path(spec.cache_dir).expanduser().absolute())
     sim_root = Path(spec.sim_root).expanduser().absolute()
     base = config if config is not None else spec.config

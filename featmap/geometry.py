@@ -17,6 +17,13 @@ MAX_MAP_SPAN_M = 2.0e7
 a wider one: one position is wrong, and the fusion's grids and samples over that span would not fit in memory."""
 
 
+def spread_and_outlier(points: np.ndarray) -> tuple[float, int]:
+    """(span, k) of (N, D) points (N >= 1): their largest extent along an axis, and the index of the point
+    farthest (largest coordinate difference) from their median: the one to blame when the span is too wide."""
+    span = float((points.max(axis=0) - points.min(axis=0)).max())
+    return span, int(np.argmax(np.abs(points - np.median(points, axis=0)).max(axis=1)))
+
+
 def as_segments(segments) -> np.ndarray:
     """Return ``segments`` as a float64 (N, 4) array (an empty input gives shape (0, 4))."""
     arr = np.asarray(segments, dtype=float)

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from featmap.errors import InputFileError
-from featmap.geometry import MAX_COORDINATE_M, MAX_MAP_SPAN_M
+from featmap.geometry import MAX_COORDINATE_M, MAX_MAP_SPAN_M, spread_and_outlier
 from featmap.io.atomic import atomic_write_text
 
 SEGMENT_COLUMNS = ("scan", "x1", "y1", "x2", "y2")
@@ -168,13 +168,11 @@ def _check_extent(path: Path, segments: np.ndarray) -> None:
     if len(far):
         raise InputFileError(path, f"a coordinate beyond {MAX_COORDINATE_M:g} m ({np.abs(segments[far[0]]).max():g}); "
                                    "coordinates are metres of a local or projected frame")
-    ends = segments.reshape(-1, 2)
-    span = float((ends.max(axis=0) - ends.min(axis=0)).max())
+    span, k = spread_and_outlier(segments.reshape(-1, 2))
     if span > MAX_MAP_SPAN_M:
-        offset = np.abs(segments.reshape(-1, 2, 2) - np.median(ends, axis=0)).max(axis=(1, 2))
         raise InputFileError(path, f"the segments span {span:.3g} m, more than any map of the Earth "
-                                   f"({MAX_MAP_SPAN_M:g} m); the farthest from the others is data row "
-                                   f"{int(np.argmax(offset)) + 1} ({offset.max():.3g} m away)")
+                                   f"({MAX_MAP_SPAN_M:g} m); the farthest from the others is data row {k // 2 + 1} "
+                                   f"({', '.join(f'{v:g}' for v in segments[k // 2])})")
 
 
 def read_segments_csv(path: str | Path) -> SegmentTable:

@@ -17,7 +17,7 @@ from featmap.datasets.base import ScanSource
 from featmap.errors import DatasetError
 from featmap.extraction import ExtractionConfig, ScanSegments, extractor_for, segments_to_world, world_fields
 from featmap.extraction.base import Extractor
-from featmap.geometry import MAX_MAP_SPAN_M
+from featmap.geometry import MAX_MAP_SPAN_M, spread_and_outlier
 from featmap.io.segments_csv import SegmentTable
 from featmap.pipeline.executor import Executor, SerialExecutor
 from featmap.pipeline.segment_store import SegmentStore, scan_key
@@ -149,12 +149,11 @@ def _check_poses(source: ScanSource, frames: list[int], poses: np.ndarray) -> No
     if not len(frames):
         return
     xyz = poses[:, :3, 3]
-    bad = ~np.all(np.isfinite(poses), axis=(1, 2))
-    if not bad.any():
-        offset = np.abs(xyz - np.median(xyz, axis=0)).max(axis=1)
-        if float((xyz.max(axis=0) - xyz.min(axis=0)).max()) <= MAX_MAP_SPAN_M:
-            return
-        bad = offset == offset.max()
-    k = int(np.argmax(bad))
-    raise DatasetError(f"{source.location}: frame {frames[k]}: pose at {xyz[k].tolist()} m: the poses span more than any map "
-                       f"of the Earth ({MAX_MAP_SPAN_M:g} m) or are not finite")
+    finite = np.all(np.isfinite(poses), axis=(1, 2))
+    if not finite.all():
+        k = int(np.argmin(finite))
+        raise DatasetError(f"{source.location}: frame {frames[k]}: its pose has NaN or inf values")
+    span, k = spread_and_outlier(xyz)
+    if span > MAX_MAP_SPAN_M:
+        raise DatasetError(f"{source.location}: frame {frames[k]}: pose at {xyz[k].tolist()} m: the poses span "
+                           f"{span:.3g} m, more than any map of the Earth ({MAX_MAP_SPAN_M:g} m)")
