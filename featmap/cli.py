@@ -288,12 +288,12 @@ def figures(
         from featmap.pipeline.config import FeatmapConfig
 
         if tiles is not None:
-            from featmap.outputs import OutputConfig
+            from featmap.plotting.basemap import tile_provider
 
             try:
-                OutputConfig(tile_source=tiles)
+                tile_provider(tiles)
             except ValueError as exc:
-                _fail(f"--tiles {tiles}: {exc.errors()[0]['msg'].removeprefix('Value error, ')}")
+                _fail(f"--tiles {tiles}: {exc}")
         base = load_config(config if config is not None else run_dir / "config.yaml").model_dump(mode="json")
         overrides = list(set_ or []) + ([f"output.tile_source={tiles}"] if tiles is not None else [])
         cfg = config_from_dict(apply_overrides(base, overrides, FeatmapConfig), str(config or run_dir / "config.yaml"))

@@ -20,6 +20,7 @@ from typing import Callable
 
 from featmap.datasets.kitti_raw import parse_drive
 from featmap.errors import DownloadError
+from featmap.io.atomic import atomic_write_text, file_in_the_way, missing_folders, remove_empty_folders
 
 KITTI_RAW_BASE_URL = "https://s3.eu-central-1.amazonaws.com/avg-kitti/raw_data"
 CHUNK = 1 << 20
@@ -138,27 +139,19 @@ def download_drive(drive: str, data_dir: str | Path, base_url: str = KITTI_RAW_B
     data_dir = Path(data_dir)
     if urllib.parse.urlparse(base_url).scheme not in ("http", "https"):
         raise DownloadError(f"--base-url {base_url}: not an http:// or https:// address")
-    for folder in (data_dir, *data_dir.parents):
-        if folder.exists():
-            if not folder.is_dir():
-                raise DownloadError(f"--data-dir {data_dir}: {folder} exists and is not a folder")
-            break
-    made = [p for p in (data_dir, *data_dir.parents) if not p.exists()]
+    blocker = file_in_the_way(data_dir)
+    if blocker is not None:
+        raise DownloadError(f"--data-dir {data_dir}: {blocker} exists and is not a folder")
     zips = data_dir / "zips"
+    made = missing_folders(data_dir)
     try:
         return _download(drive, data_dir, zips, base_url, progress_factory, keep_zips)
     finally:                                 # no empty folders left behind by a failed download
-        for folder in (zips, *made):
-            try:
-                folder.rmdir()
-            except OSError:
-                pass
+        remove_empty_folders([zips, *made])
 
 
 def _download(drive: str, data_dir: Path, zips: Path, base_url: str,
               progress_factory: Callable[[str], Progress] | None, keep_zips: bool) -> list[Path]:
-    from featmap.io.atomic import atomic_write_text
-
     out = []
     for url in drive_urls(drive, base_url):
         dest = zips / url.rsplit("/", 1)[-1]

@@ -38,3 +38,27 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
     return Path(path)
+
+
+def file_in_the_way(path: str | Path) -> Path | None:
+    """The first of ``path`` and the folders above it that exists and is not a folder (None: none is)."""
+    path = Path(path)
+    for p in (path, *path.parents):
+        if p.exists():
+            return None if p.is_dir() else p
+    return None
+
+
+def missing_folders(path: str | Path) -> list[Path]:
+    """``path`` and the folders above it that do not exist yet, innermost first (what making it would make)."""
+    path = Path(path)
+    return [p for p in (path, *path.parents) if not p.exists()]
+
+
+def remove_empty_folders(folders: list[Path]) -> None:
+    """Remove ``folders`` (innermost first) while they are empty: what a failed step made and left unused."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:
+            return

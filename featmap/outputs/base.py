@@ -14,6 +14,7 @@ from featmap.fusion import FusionResult
 from featmap.geo import GeoFrame
 from featmap.io.run_metrics import RunMetrics
 from featmap.io.segments_csv import SegmentTable
+from featmap.plotting.basemap import tile_provider
 
 
 class OutputConfig(Section):
@@ -31,16 +32,7 @@ class OutputConfig(Section):
     @classmethod
     def _known_tile_source(cls, value: str) -> str:
         """An unknown provider name is a mistake to report at once (an unreachable server is not: it falls back)."""
-        if "{" in value:
-            return value
-        import xyzservices.providers as xyz
-
-        node = xyz
-        for part in value.split("."):
-            if part not in node:
-                raise ValueError(f"unknown tile source {value!r}: an xyzservices name such as OpenStreetMap.Mapnik, "
-                                 "or a URL template with {z}/{x}/{y}")
-            node = node[part]
+        tile_provider(value)
         return value
 
 

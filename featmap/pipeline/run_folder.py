@@ -21,6 +21,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from featmap.errors import FeatmapError
+from featmap.io.atomic import file_in_the_way
 
 
 class RunFolderError(FeatmapError):
@@ -37,12 +38,9 @@ stale once the run is redone, so a new run replaces them."""
 
 def check_folder_path(out: str | Path, what: str = "--out") -> None:
     """Fail (one line naming ``what``) when ``out`` or a folder above it exists but is a file."""
-    out = Path(out)
-    for folder in (out, *out.parents):
-        if folder.exists():
-            if not folder.is_dir():
-                raise RunFolderError(f"{what} {out}: {folder} exists and is not a folder")
-            return
+    blocker = file_in_the_way(out)
+    if blocker is not None:
+        raise RunFolderError(f"{what} {out}: {blocker} exists and is not a folder")
 
 
 class RunFolder:
@@ -84,7 +82,7 @@ class RunFolder:
         try:
             parent.mkdir(parents=True, exist_ok=True)
         except FileExistsError:
-            raise RunFolderError(f"--out {out}: {self._first_file(parent)} is a file, not a folder") from None
+            raise RunFolderError(f"--out {out}: {file_in_the_way(parent) or parent} is a file, not a folder") from None
         except OSError as exc:
             raise RunFolderError(f"--out {out}: cannot create {parent} ({exc.strerror})") from None
         lock = parent / f".{out.name}.lock"
@@ -112,13 +110,6 @@ class RunFolder:
         """Temporary twins left by runs that were killed (we hold the lock, so no other run is writing)."""
         for leftover in list(parent.glob(f".{name}.partial-*")) + list(parent.glob(f".{name}.old-*")):
             shutil.rmtree(leftover, ignore_errors=True)
-
-    @staticmethod
-    def _first_file(path: Path) -> Path:
-        for p in [path, *path.parents]:
-            if p.exists() and not p.is_dir():
-                return p
-        return path
 
     @staticmethod
     def foreign_entries(out: Path) -> list[str]:

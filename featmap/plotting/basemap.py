@@ -33,7 +33,9 @@ class Tiles:
     timeout_s: float = 5.0
 
 
-def _provider(source: str):
+def tile_provider(source: str):
+    """The xyzservices provider named ``source`` (``"OpenStreetMap.Mapnik"``), or ``source`` itself when it is a
+    ``{z}/{x}/{y}`` URL template. Raises ValueError for an unknown name."""
     import xyzservices.providers as xyz
 
     if "{" in source:
@@ -42,7 +44,8 @@ def _provider(source: str):
     for part in source.split("."):
         node = node[part] if part in node else None
         if node is None:
-            raise ValueError(f"unknown tile source {source!r} (an xyzservices name or a {{z}}/{{x}}/{{y}} URL)")
+            raise ValueError(f"unknown tile source {source!r}: an xyzservices name such as OpenStreetMap.Mapnik, "
+                             "or a URL template with {z}/{x}/{y}")
     return node
 
 
@@ -62,12 +65,12 @@ def add_basemap(ax, frame: GeoFrame, tiles: Tiles = Tiles(), zoom: int | str = "
     if zoom == "auto":
         max_zoom = 19
         try:
-            max_zoom = int(getattr(_provider(source), "max_zoom", 19) or 19)
+            max_zoom = int(getattr(tile_provider(source), "max_zoom", 19) or 19)
         except Exception:
             pass
         zoom = int(np.clip(np.round(np.log2(40075016.0 * 3 / max(e - w, 1.0))), 0, max_zoom))
     try:
-        provider = _provider(source)
+        provider = tile_provider(source)
         if cache_dir is not None:
             Path(cache_dir).expanduser().mkdir(parents=True, exist_ok=True)
             ctx.set_cache_dir(str(Path(cache_dir).expanduser()))

@@ -40,7 +40,7 @@ import numpy as np
 
 from featmap.errors import FeatmapError
 from featmap.geo import GeoFrame, latlon_to_mercator, mercator_to_latlon
-from featmap.io.atomic import atomic_write_text
+from featmap.io.atomic import atomic_write_text, missing_folders, remove_empty_folders
 from featmap.io.kitti_raw import (drive_paths, format_oxts_packet, write_calib_file, write_timestamps,
                                   write_velo_bin)
 from featmap.io.sim_truth import COVERAGE_BIN_M, OBSERVATIONS_FILE, observed_intervals, write_coverage, write_observations
@@ -244,17 +244,13 @@ def simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_f
     """
     calib_dir, final_dir = drive_paths(Path(out_root), SIM_DATE, drive_id)
     partial = final_dir.parent / f".{final_dir.name}.partial"
-    made = [p for p in (calib_dir, *calib_dir.parents) if not p.exists()]
+    made = missing_folders(calib_dir)
     try:
         return _simulate_drive(world, out_root, sensor, n_frames, noise_m, dropout, pose_noise, seed, drive_id,
                                truth_range_m, progress, scan_observations, pose_noise_tau_s)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)      # a failed simulation leaves nothing that looks like a drive
-        for folder in made:                             # nor the empty folders it made (innermost first)
-            try:
-                folder.rmdir()
-            except OSError:
-                break
+        remove_empty_folders(made)                      # nor the empty folders it made
         raise
 
 
