@@ -139,6 +139,26 @@ def test_dropped_segments_on_a_kept_wall_join_it_and_others_stay_dropped():
     assert out.labels[10] == 0 and out.labels[11] == -1 and out.support.tolist() == [11]
 
 
+def test_a_short_view_slightly_askew_at_a_long_walls_end_joins_it_and_a_parallel_surface_does_not():
+    """A 3.5 m view 3 cm off a 20 m wall and 2 deg askew lies on the wall (its endpoints 3-9 cm from the
+    wall's line), though the wall's far end is 0.7 m from the view's own line; a view 0.3 m in front of
+    the wall is another surface."""
+    rng = np.random.default_rng(3)
+    wall = np.array([0.0, 0.0, 20.0, 0.0])
+    segs, scan = observe_walls(wall, 6, 0.005, rng)
+    a = np.deg2rad(2.0)
+    askew = np.array([[17.0, 0.03, 17.0 + 3.5 * np.cos(a), 0.03 + 3.5 * np.sin(a)]])
+    parallel = np.array([[5.0, 0.3, 8.5, 0.3]])
+    segs = np.vstack([segs, askew, parallel])
+    scan = np.r_[scan, 50, 51]
+    labels = np.r_[np.zeros(6, np.int64), -1, -1]
+    fused = fit_clusters(segs, labels, 1)
+    config = RefineConfig(max_offset_m=0.15)
+    out = refine(FusionResult(fused, np.array([6]), labels, fused), segs, scan, config)
+    assert out.labels[6] == 0 and out.labels[7] == -1
+    assert np.abs(out.segments[0, [1, 3]]).max() < 0.05
+
+
 def test_support_length_rule_keeps_a_long_wall_seen_twice():
     rng = np.random.default_rng(6)
     walls = np.array([[0, 0, 6, 0], [0, 5, 0.6, 5]], float)          # a 6 m wall and a 0.6 m object
