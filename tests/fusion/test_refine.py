@@ -140,9 +140,9 @@ def test_dropped_segments_on_a_kept_wall_join_it_and_others_stay_dropped():
 
 
 def test_a_short_view_slightly_askew_at_a_long_walls_end_joins_it_and_a_parallel_surface_does_not():
-    """A 3.5 m view 3 cm off a 20 m wall and 2 deg askew lies on the wall (its endpoints 3-9 cm from the
-    wall's line), though the wall's far end is 0.7 m from the view's own line; a view 0.3 m in front of
-    the wall is another surface."""
+    """A 3.5 m view starting 3 cm off a 20 m wall, 2 deg askew, lies on the wall (its endpoints 3 and 15 cm
+    from the wall's line, 9 cm on average), though the wall's far end is 0.56 m from the view's own line; a
+    view 0.3 m in front of the wall is another surface."""
     rng = np.random.default_rng(3)
     wall = np.array([0.0, 0.0, 20.0, 0.0])
     segs, scan = observe_walls(wall, 6, 0.005, rng)
