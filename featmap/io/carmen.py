@@ -192,11 +192,15 @@ def _numbers(path, lineno: int, tokens: list[str], what: str) -> np.ndarray:
     return values
 
 
-def _check_positions(path, lineno: int, xy: np.ndarray, what: str) -> None:
-    """Pose coordinates (metres) beyond ``MAX_COORDINATE_M`` fail (the geometry would overflow)."""
-    if np.abs(xy).max(initial=0.0) > MAX_COORDINATE_M:
-        raise InputFileError(path, f"{what}: pose coordinate {np.abs(xy).max():.3g} m is beyond {MAX_COORDINATE_M:g} m "
-                                   "(poses are metres in the log's frame)", lineno)
+def _check_positions(path, xy: np.ndarray, lines: np.ndarray, messages: np.ndarray) -> None:
+    """Pose coordinates (metres) beyond ``MAX_COORDINATE_M`` fail (the geometry would overflow), naming the
+    first such record in the file: ``xy`` (K, M) coordinates of K records, ``lines`` (K,) their line
+    numbers, ``messages`` (K,) their message types."""
+    far = np.flatnonzero(np.abs(xy).max(axis=1, initial=0.0) > MAX_COORDINATE_M) if len(xy) else []
+    if len(far):
+        k = int(far[np.argmin(lines[far])])
+        raise InputFileError(path, f"{messages[k]}: pose coordinate {np.abs(xy[k]).max():.3g} m is beyond "
+                                   f"{MAX_COORDINATE_M:g} m (poses are metres in the log's frame)", int(lines[k]))
 
 
 def _is_number(text: str) -> bool:
@@ -226,7 +230,6 @@ def _parse_flaser(path, lineno: int, tokens: list[str]) -> dict:
         raise InputFileError(path, f"FLASER with {n} beams needs at least {need - 1} values after the type, "
                                    f"got {len(tokens) - 1}", lineno)
     values = _numbers(path, lineno, tokens[2:need], "FLASER")
-    _check_positions(path, lineno, values[[n, n + 1, n + 3, n + 4]], "FLASER")
     logger = _optional_float(tokens, need + 1)
     return dict(ranges=values[:n], angles=carmen_beam_angles(n), max_range=None, pose=values[n:n + 3],
                 odometry=values[n + 3:n + 6], timestamp=values[n + 6], logger_timestamp=logger,
@@ -253,7 +256,6 @@ def _parse_robotlaser(path, lineno: int, tokens: list[str]) -> dict:
         raise InputFileError(path, f"ROBOTLASER1 with {n} beams and {m} remissions has too few values "
                                    f"({len(tokens) - 1})", lineno)
     tail = _numbers(path, lineno, tokens[start:need], "ROBOTLASER1")
-    _check_positions(path, lineno, tail[[0, 1, 3, 4]], "ROBOTLASER1")
     angles = header[1] + header[3] * np.arange(n)
     return dict(ranges=ranges, angles=angles, max_range=float(header[4]), pose=tail[0:3], odometry=tail[3:6],
                 timestamp=tail[11], logger_timestamp=_optional_float(tokens, need + 1), line=lineno,
@@ -264,9 +266,7 @@ def _parse_odom(path, lineno: int, tokens: list[str]) -> np.ndarray:
     if len(tokens) < 8:
         raise InputFileError(path, f"ODOM needs at least 7 values (x y theta tv rv accel timestamp), "
                                    f"got {len(tokens) - 1}", lineno)
-    values = _numbers(path, lineno, tokens[1:8], "ODOM")
-    _check_positions(path, lineno, values[:2], "ODOM")
-    return values
+    return _numbers(path, lineno, tokens[1:8], "ODOM")
 
 
 def _optional_float(tokens: list[str], index: int) -> float:
@@ -357,14 +357,17 @@ def _assemble(path: Path, scans: list[dict], odom: list[np.ndarray], odom_lines:
         valid = np.isfinite(ranges) & (ranges > 0) & (ranges < limit[:, None])
     stack = lambda key: np.array([s[key] for s in scans], dtype=np.float64)  # noqa: E731
     odom_arr = np.array(odom, dtype=np.float64).reshape(-1, 7)
+    pose, odometry = stack("pose").reshape(-1, 3), stack("odometry").reshape(-1, 3)
+    line, message = np.array([s["line"] for s in scans], dtype=np.int64), np.array([s["message"] for s in scans])
+    odom_line = np.array(odom_lines, dtype=np.int64)
+    _check_positions(path, np.vstack([np.hstack([pose[:, :2], odometry[:, :2]]), np.tile(odom_arr[:, :2], 2)]),
+                     np.r_[line, odom_line], np.r_[message, np.full(len(odom_line), "ODOM")])
     return CarmenLog(
         path=str(path), ranges=ranges, angles=angles, valid=valid, max_range=max_range,
-        pose=stack("pose").reshape(-1, 3), odometry=stack("odometry").reshape(-1, 3),
-        timestamp=stack("timestamp"), logger_timestamp=stack("logger_timestamp"),
-        line=np.array([s["line"] for s in scans], dtype=np.int64),
-        message=np.array([s["message"] for s in scans]),
+        pose=pose, odometry=odometry, timestamp=stack("timestamp"), logger_timestamp=stack("logger_timestamp"),
+        line=line, message=message,
         odom_pose=odom_arr[:, 0:3], odom_velocity=odom_arr[:, 3:5], odom_timestamp=odom_arr[:, 6],
-        odom_line=np.array(odom_lines, dtype=np.int64), skipped=tuple(sorted(skipped.items())))
+        odom_line=odom_line, skipped=tuple(sorted(skipped.items())))
 
 
 def _inferred_max_range(ranges: np.ndarray) -> tuple[float, float]:

@@ -113,6 +113,11 @@ def _flaser(ranges, pose="1 2 0.5 1 2 0.5 10.5 h 10.6"):
     ("", r"x.log:1: no FLASER or ROBOTLASER1 record"),
     ("scan,x1,y1,x2,y2\n0,1,2,3,4\n", r"x.log:1: not a CARMEN log: line starts with 'scan,x1,y1,x2,y2'"),
     ("PARAM a b\nODOM 0 0 0\n", r"x.log:2: ODOM needs at least 7 values"),
+    # positions beyond any map: the first such record in the file is named, whatever its type
+    (_flaser(["1"] * 10) + "\nODOM 1e30 0 0 0 0 0 1 h 1\n" + _flaser(["1"] * 10, "2e13 2 0.5 1 2 0.5 10.5 h 10.6") + "\n",
+     r"x.log:2: ODOM: pose coordinate 1e\+30 m is beyond"),
+    (_flaser(["1"] * 10, "1 2 0.5 -3e12 2 0.5 10.5 h 10.6") + "\nODOM 1e30 0 0 0 0 0 1 h 1\n",
+     r"x.log:1: FLASER: pose coordinate 3e\+12 m is beyond"),
 ])
 def test_bad_logs_name_file_and_line(tmp_path, content, match):
     path = tmp_path / "x.log"
