@@ -62,15 +62,11 @@ def add_basemap(ax, frame: GeoFrame, tiles: Tiles = Tiles(), zoom: int | str = "
     # local -> EPSG:3857: X = (x + ox) / s
     w, e = (x0 + ox) / s, (x1 + ox) / s
     south, north = (y0 + oy) / s, (y1 + oy) / s
-    if zoom == "auto":
-        max_zoom = 19
-        try:
-            max_zoom = int(getattr(tile_provider(source), "max_zoom", 19) or 19)
-        except Exception:
-            pass
-        zoom = int(np.clip(np.round(np.log2(40075016.0 * 3 / max(e - w, 1.0))), 0, max_zoom))
     try:
         provider = tile_provider(source)
+        if zoom == "auto":
+            max_zoom = int(getattr(provider, "max_zoom", 19) or 19)
+            zoom = int(np.clip(np.round(np.log2(40075016.0 * 3 / max(e - w, 1.0))), 0, max_zoom))
         if cache_dir is not None:
             Path(cache_dir).expanduser().mkdir(parents=True, exist_ok=True)
             ctx.set_cache_dir(str(Path(cache_dir).expanduser()))
