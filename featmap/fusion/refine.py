@@ -15,7 +15,9 @@ parallel duplicates. :func:`refine` repairs them from the member segments alone,
    within ``max_offset_m`` of one fitted line become one (closest pairs first). Segments dropped by a
    support filter join a feature when they lie on it (``absorb_dropped``): within ``max_offset_m`` of
    the line of the heavier side, as a short view's own direction is too poorly known to test a long
-   feature against.
+   feature against. Two kept features merge when each lies within ``max_offset_m`` of the other's
+   line, or the lighter within ``kept_heavier_ratio * max_offset_m`` of the heavier's (a short
+   duplicate beside a long wall, slightly askew).
 3. **gaps**: every feature is cut where its members leave more than ``split_gap_m`` of its line
    unobserved (doorways, passages between walls in line); see :mod:`featmap.fusion.gaps`.
 
@@ -45,6 +47,7 @@ class RefineConfig(Section):
     merge_angle_deg: float = Field(5.0, ge=0, le=90, description="merge only features within this angle of parallel")
     merge_gap_m: float = Field(1.0, ge=0, description="merge only features that overlap or leave at most this gap along their line")
     absorb_dropped: bool = Field(True, description="segments dropped by a support filter join a feature they lie on")
+    kept_heavier_ratio: float = Field(0.5, ge=0, le=1, description="two kept features also merge when the lighter lies within this fraction of max_offset_m of the heavier's line (0 = only when each lies near the other's)")
     split_gap_m: float = Field(0.0, ge=0, description="cut features where no member covers this much of their line, e.g. doorways (0 = off)")
 
 
@@ -225,11 +228,24 @@ class _Clusters:
         return a
 
 
+def _explained_together(seg_a: np.ndarray, w_a: np.ndarray, seg_b: np.ndarray, w_b: np.ndarray,
+                        both_kept: bool, config: RefineConfig) -> bool:
+    """Whether two member sets (K, 4) and (J, 4) lie on one line closely enough to merge (see
+    :func:`merge_consistent`)."""
+    if not both_kept:
+        return offset_from_heavier(seg_a, w_a, seg_b, w_b) <= config.max_offset_m
+    if separation(seg_a, w_a, seg_b, w_b) <= config.max_offset_m:
+        return True
+    return (config.kept_heavier_ratio > 0
+            and offset_from_heavier(seg_a, w_a, seg_b, w_b) <= config.kept_heavier_ratio * config.max_offset_m)
+
+
 def merge_consistent(segments: np.ndarray, labels: np.ndarray, fused: np.ndarray, weights: np.ndarray,
                      kept: np.ndarray, config: RefineConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Greedily merge clusters that one line explains within ``max_offset_m``: two kept clusters when
-    each lies within it of the other's line (:func:`separation`), a dropped cluster and a kept one when
-    the lighter lies within it of the heavier's line (:func:`offset_from_heavier`).
+    each lies within it of the other's line (:func:`separation`) or the lighter lies within
+    ``kept_heavier_ratio * max_offset_m`` of the heavier's line, a dropped cluster and a kept one when
+    the lighter lies within ``max_offset_m`` of the heavier's line (:func:`offset_from_heavier`).
 
     Args:
         segments: (N, 4); labels: (N,) cluster in ``[0, C)`` (every segment has one); fused: (C, 4)
@@ -281,8 +297,8 @@ def merge_consistent(segments: np.ndarray, labels: np.ndarray, fused: np.ndarray
         if ri == rj or not (kept_root[ri] or kept_root[rj]):
             continue
         mi, mj = np.array(clusters.members[ri]), np.array(clusters.members[rj])
-        offset = offset_from_heavier if not (kept_root[ri] and kept_root[rj]) else separation
-        if offset(segments[mi], weights[mi], segments[mj], weights[mj]) > config.max_offset_m:
+        if not _explained_together(segments[mi], weights[mi], segments[mj], weights[mj],
+                                   both_kept=bool(kept_root[ri] and kept_root[rj]), config=config):
             continue
         members = np.concatenate([mi, mj])
         c, u = _fit_line(np.concatenate([segments[members, :2], segments[members, 2:]]),

@@ -159,6 +159,31 @@ def test_a_short_view_slightly_askew_at_a_long_walls_end_joins_it_and_a_parallel
     assert np.abs(out.segments[0, [1, 3]]).max() < 0.05
 
 
+def test_a_kept_short_duplicate_slightly_askew_on_a_long_wall_merges_and_a_parallel_surface_does_not():
+    """Two kept features: a 20 m wall and a 3 m duplicate at its end, 2 deg askew (its endpoints 0 and
+    10 cm from the wall's line, within half of max_offset_m on average; the wall's far end 0.59 m from
+    the duplicate's own line). They merge only with ``kept_heavier_ratio``; a kept 3 m feature 0.3 m in
+    front of the wall never does."""
+    rng = np.random.default_rng(5)
+    wall = np.array([0.0, 0.0, 20.0, 0.0])
+    segs, scan = observe_walls(wall, 6, 0.005, rng)
+    a = np.deg2rad(2.0)
+    askew = np.array([17.0, 0.0, 17.0 + 3.0 * np.cos(a), 3.0 * np.sin(a)])
+    front = np.array([5.0, 0.3, 8.0, 0.3])
+    segs = np.vstack([segs, np.tile(askew, (3, 1)), np.tile(front, (3, 1))])
+    segs[6:] += rng.normal(0.0, 0.002, (6, 4))
+    scan = np.r_[scan, 50, 51, 52, 60, 61, 62]
+    labels = np.r_[np.zeros(6, np.int64), 1, 1, 1, 2, 2, 2]
+    fused = fit_clusters(segs, labels, 3)
+    result = FusionResult(fused, np.bincount(labels), labels, fused)
+    merged = refine(result, segs, scan, RefineConfig(max_offset_m=0.15, kept_heavier_ratio=0.5))
+    assert len(merged.segments) == 2
+    assert merged.labels[6] == merged.labels[0] != merged.labels[9]
+    assert np.abs(merged.segments[merged.labels[0], [1, 3]]).max() < 0.05
+    apart = refine(result, segs, scan, RefineConfig(max_offset_m=0.15, kept_heavier_ratio=0.0))
+    assert len(apart.segments) == 3
+
+
 def test_support_length_rule_keeps_a_long_wall_seen_twice():
     rng = np.random.default_rng(6)
     walls = np.array([[0, 0, 6, 0], [0, 5, 0.6, 5]], float)          # a 6 m wall and a 0.6 m object
