@@ -29,7 +29,7 @@ transcendental function differently. A pair whose value lies within a tiny band 
 therefore not decided here: it is returned as *undecided* and the caller evaluates it with numpy, as
 the exhaustive version does. The decision for every pair is thus bit-for-bit the exhaustive one.
 
-Compiled with numba (cached on disk after the first call).
+Compiled with numba (cached on disk after the first call, where numba finds a writable place for it).
 """
 
 from __future__ import annotations
@@ -47,7 +47,20 @@ DISTANCE_BAND_REL = 1e-12  # on d_max, times the largest absolute coordinate (pl
 _PASS, _FAIL, _UNDECIDED = 0, 1, 2
 
 
-@njit(cache=True, inline="always")
+def compiled(**options):
+    """``numba.njit(cache=True, **options)``, or without the disk cache where numba has no writable place
+    for it (a read-only install with no writable user cache folder): compiled on each start, not an error."""
+
+    def decorate(func):
+        try:
+            return njit(cache=True, **options)(func)
+        except RuntimeError:          # numba: "cannot cache function ...: no locator available"
+            return njit(**options)(func)
+
+    return decorate
+
+
+@compiled(inline="always")
 def _find(parent, x):
     root = x
     while parent[root] != root:
@@ -59,7 +72,7 @@ def _find(parent, x):
     return root
 
 
-@njit(cache=True, inline="always")
+@compiled(inline="always")
 def _point_segment_distance(px, py, x1, y1, x2, y2):
     """As :func:`featmap.geometry.point_segment_distance` for one pair (same operations)."""
     abx = x2 - x1
@@ -79,7 +92,7 @@ def _point_segment_distance(px, py, x1, y1, x2, y2):
     return math.hypot(px - cx, py - cy)
 
 
-@njit(cache=True, inline="always")
+@compiled(inline="always")
 def _acos_clipped(v):
     if v < -1.0:
         v = -1.0
@@ -88,7 +101,7 @@ def _acos_clipped(v):
     return math.acos(v)
 
 
-@njit(cache=True)
+@compiled()
 def _decide(seg, i, j, cos_delta, gamma, eta, dist_band, check_angle, check_overlap):
     """PASS, FAIL or UNDECIDED for the three criteria of the pair (i, j) (formulas of evaluate_pairs)."""
     x1i, y1i, x2i, y2i = seg[i, 0], seg[i, 1], seg[i, 2], seg[i, 3]
@@ -136,13 +149,13 @@ def _decide(seg, i, j, cos_delta, gamma, eta, dist_band, check_angle, check_over
     return _UNDECIDED if undecided else _PASS
 
 
-@njit(cache=True, inline="always")
+@compiled(inline="always")
 def _hash_slot(key, mask):
     h = np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)
     return np.int64(h >> np.uint64(33)) & mask
 
 
-@njit(cache=True)
+@compiled()
 def _build_cell_table(keys):
     """Open-addressing table of the distinct cell keys: (table_keys, table_cell, mask)."""
     size = 16
@@ -160,7 +173,7 @@ def _build_cell_table(keys):
     return table_keys, table_cell, mask
 
 
-@njit(cache=True, inline="always")
+@compiled(inline="always")
 def _lookup(table_keys, table_cell, mask, key):
     s = _hash_slot(key, mask)
     while True:
@@ -172,14 +185,14 @@ def _lookup(table_keys, table_cell, mask, key):
         s = (s + 1) & mask
 
 
-@njit(cache=True, inline="always")
+@compiled(inline="always")
 def _box_point_distance(x0, x1, y0, y1, px, py):
     dx = max(x0 - px, 0.0, px - x1)
     dy = max(y0 - py, 0.0, py - y1)
     return math.hypot(dx, dy)
 
 
-@njit(cache=True)
+@compiled()
 def _box_segment_distance(x0, x1, y0, y1, ax, ay, bx, by):
     """Distance between the axis-aligned box [x0, x1] x [y0, y1] and the segment a-b (0 if they meet)."""
     # an endpoint inside the box
@@ -221,7 +234,7 @@ def _box_segment_distance(x0, x1, y0, y1, ax, ay, bx, by):
     return best
 
 
-@njit(cache=True)
+@compiled()
 def _union(parent, size, a, b):
     """Join the components of roots a and b (union by size); return the new root."""
     if size[a] < size[b]:
@@ -231,7 +244,7 @@ def _union(parent, size, a, b):
     return a
 
 
-@njit(cache=True)
+@compiled()
 def link_forest_kernel(seg, order, scan_start, scan_from, scan_to, cell_of,
                        table_keys, table_cell, mask, ny, x_origin, y_origin, cell_size,
                        cos_delta, gamma, eta, dist_band, check_angle, check_overlap,
@@ -386,7 +399,7 @@ def link_forest_kernel(seg, order, scan_start, scan_from, scan_to, cell_of,
     return n_groups, n_links, n_undecided, undecided_i, undecided_j
 
 
-@njit(cache=True)
+@compiled()
 def _merge_groups(a, b, group_head, group_tail, group_box, seg_next):
     """Append group b's members to group a and widen a's boxes (b is then unlinked by the caller)."""
     seg_next[group_tail[a]] = group_head[b]
@@ -397,7 +410,7 @@ def _merge_groups(a, b, group_head, group_tail, group_box, seg_next):
         group_box[a, c + 1] = max(group_box[a, c + 1], group_box[b, c + 1])
 
 
-@njit(cache=True)
+@compiled()
 def _grow(buffer):
     out = np.empty(2 * len(buffer), buffer.dtype)
     out[:len(buffer)] = buffer
@@ -406,7 +419,7 @@ def _grow(buffer):
 
 # --- connected components of the density method's neighbour graph --------------------------------------
 
-@njit(cache=True)
+@compiled()
 def band_components_kernel(order, umin, umax, v, entry_start, entry_cells, cell_count, lateral_eps, gap, slack,
                            cell_key_of, table_keys, table_cell, mask, u_origin, u_size, v_origin, v_size, nu, nv):
     """Union-find components of "``|v_i - v_j| <= lateral_eps`` and the u-intervals leave a gap ``<= gap``".
@@ -529,7 +542,7 @@ def band_components_kernel(order, umin, umax, v, entry_start, entry_cells, cell_
     return parent, stats
 
 
-@njit(cache=True)
+@compiled()
 def _merge_band_groups(a, b, group_head, group_tail, group_box, entry_next):
     entry_next[group_tail[a]] = group_head[b]
     group_tail[a] = group_tail[b]

@@ -143,3 +143,30 @@ def test_progress_is_reported_in_scans_up_to_the_total():
     assert calls[-1] == (total, total)
     assert all(t == total for _, t in calls) and [d for d, _ in calls] == sorted(d for d, _ in calls)
     assert np.array_equal(result.labels, fuse_proposed(segments, scan).labels)
+
+
+SCENE_LINKS = """
+import numpy as np
+from featmap.fusion.proposed import ProposedConfig, linked_pairs
+from featmap.simulation.segments import city_walls, observe_revisits
+rng = np.random.default_rng(3)
+segments, scan = observe_revisits(city_walls(12, rng), passes=3, scans_per_wall=4, rng=rng)
+i, j = linked_pairs(segments, scan, ProposedConfig())
+print(len(segments), len(i), int(i.sum() + j.sum()))
+"""
+
+
+def test_the_link_forest_works_where_numba_has_nowhere_to_cache_it():
+    # a read-only install whose user has no writable cache folder: numba finds no cache locator (forced here
+    # with the one locator that never applies outside IPython); featmap compiles without the disk cache
+    import os
+    import subprocess
+    import sys
+
+    def links(**env):
+        done = subprocess.run([sys.executable, "-c", SCENE_LINKS], capture_output=True, text=True, timeout=300,
+                              env={**os.environ, **env})
+        assert done.returncode == 0, done.stderr
+        return done.stdout
+
+    assert links(NUMBA_CACHE_LOCATOR_CLASSES="IPythonCacheLocator") == links()
