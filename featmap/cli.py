@@ -10,6 +10,7 @@ file and exit with status 2.
 from __future__ import annotations
 
 import functools
+import os
 import sys
 import warnings
 from pathlib import Path
@@ -76,6 +77,12 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
         print(warnings.formatwarning(message, category, filename, lineno, line), file=sys.stderr, end="")
 
 
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null so that flushing it at exit does not raise a second BrokenPipeError."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+
+
 def command(func):
     """Register ``func`` as a command that turns FeatmapError into a one-line message and exit code 2."""
 
@@ -87,6 +94,9 @@ def command(func):
                 return func(*args, **kwargs)
         except FeatmapError as exc:
             _fail(str(exc))
+        except BrokenPipeError:    # `featmap config | head`: the reader has gone; stop quietly, as Unix tools do
+            _quiet_stdout()
+            raise typer.Exit(code=141)
         except OSError as exc:     # the environment, not a bug: a full disk, a read-only folder, a vanished file
             where = f"{exc.filename}: " if exc.filename else ""
             _fail(f"{where}{exc.strerror or exc}")

@@ -2,7 +2,10 @@
 
 import csv
 import io
+import os
 import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -63,3 +66,16 @@ def test_a_killed_sweep_resumes_to_the_same_results(case1_drive, tmp_path):
     assert res.exit_code == 0, res.output
     assert _sweep_table(tmp_path / "s" / "sweep.csv") == _sweep_table(tmp_path / "ref" / "sweep.csv")
     assert (tmp_path / "s" / "best.yaml").read_bytes() == (tmp_path / "ref" / "best.yaml").read_bytes()
+
+
+def test_a_reader_that_goes_away_stops_featmap_quietly():
+    # `featmap config | head -0`: the reader has closed its end before featmap writes a byte
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        process = subprocess.run([sys.executable, "-m", "featmap.cli", "config"], stdout=write_end,
+                                 stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(write_end)
+    assert process.returncode == 141, process.stderr
+    assert process.stderr == ""                   # no "Broken pipe" error, no "Exception ignored" at exit
