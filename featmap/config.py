@@ -147,7 +147,8 @@ def _field_types(model: type[BaseModel], path: list[str]) -> tuple:
 
 
 def _takes_text(model: type[BaseModel], path: list[str]) -> bool:
-    return str in _field_types(model, path)
+    """The field takes a string: ``str`` or a Literal of names (e.g. ``Literal["midpoint", "none"]``)."""
+    return any(t is str or isinstance(t, str) for t in _field_types(model, path))
 
 
 def _takes_bool(model: type[BaseModel], path: list[str]) -> bool:
@@ -173,13 +174,31 @@ def yaml_problem(exc: Exception) -> str:
     return " ".join(str(getattr(exc, "problem", None) or exc).split())
 
 
-def read_yaml_mapping(path: str | Path) -> dict[str, Any]:
-    """Read a YAML file that must hold a mapping; a one-line ConfigError otherwise."""
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, except that a key given twice in one mapping is an error (PyYAML keeps the last)."""
+
+    def construct_mapping(self, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            try:
+                duplicate = key in seen
+                seen.add(key)
+            except TypeError:                     # an unhashable key: PyYAML reports it below
+                continue
+            if duplicate:
+                raise yaml.constructor.ConstructorError(None, None, f"{key!r} is given twice", key_node.start_mark)
+        return super().construct_mapping(node, deep)
+
+
+def read_yaml_mapping(path: str | Path, what: str = "config file") -> dict[str, Any]:
+    """Read a YAML file (a ``what``: config, sweep or batch file) that must hold a mapping with no key given
+    twice; a one-line ConfigError otherwise."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise ConfigError(f"{path}: config file not found") from None
+        raise ConfigError(f"{path}: {what} not found") from None
     except IsADirectoryError:
         raise ConfigError(f"{path}: is a folder, expected a YAML file") from None
     except UnicodeDecodeError as exc:
@@ -187,7 +206,7 @@ def read_yaml_mapping(path: str | Path) -> dict[str, Any]:
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}{yaml_error_line(exc)}: not valid YAML ({yaml_problem(exc)})") from None
     if data is None:

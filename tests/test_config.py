@@ -101,3 +101,19 @@ def test_a_name_that_yaml_reads_as_a_boolean_stays_a_name():
         load_config(None, ["output.tile_source=no"])
     assert load_config(None, ["output.tile_source=https://127.0.0.1/{z}/{x}/{y}.png"]).output.tile_source.startswith("https")
     assert load_config(None, ["output.plots=no"]).output.plots is False       # a boolean where one is meant
+    # a choice among names: YAML's 'off' is the word off, which is not one of them
+    with pytest.raises(ConfigError, match=r"must be one of 'midpoint', 'intersection' or 'none' \(got 'off'\)"):
+        load_config(None, ["fusion.corners.mode=off"])
+    assert load_config(None, ["fusion.corners.mode=none"]).fusion.corners.mode == "none"
+
+
+def test_a_key_given_twice_in_a_yaml_file_is_an_error_naming_its_line(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("fusion:\n  proposed:\n    delta_deg: 5\n    gamma: 0.3\n    delta_deg: 7\n")
+    with pytest.raises(ConfigError, match=r"c\.yaml:5: not valid YAML \('delta_deg' is given twice\)"):
+        load_config(path)
+    path.write_text("fusion:\n  proposed:\n    delta_deg: 5\nfusion:\n  proposed:\n    gamma: 0.3\n")
+    with pytest.raises(ConfigError, match=r"c\.yaml:4: .*'fusion' is given twice"):
+        load_config(path)
+    path.write_text("fusion:\n  proposed:\n    delta_deg: 7\n  meanshift: {}\n")            # same name, other mappings
+    assert load_config(path).fusion.proposed.delta_deg == 7
