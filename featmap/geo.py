@@ -7,9 +7,13 @@ pykitti projects every OXTS packet with a Mercator projection whose scale is ``c
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, fields
+from numbers import Real
 
 import numpy as np
+
+from featmap.errors import ConfigError
 
 EARTH_RADIUS_M = 6378137.0
 """The earth radius pykitti uses in its Mercator projection."""
@@ -38,13 +42,30 @@ class GeoFrame:
     """The local metric frame of one drive: origin and Mercator scale from its first OXTS packet.
 
     Attributes:
-        lat0_deg, lon0_deg: WGS84 position of the first OXTS packet (the local origin).
+        lat0_deg, lon0_deg: WGS84 position of the first OXTS packet (the local origin), -90 < lat < 90
+            (the Mercator projection has no poles) and -180 <= lon <= 180.
         alt0_m: its altitude (the local z origin).
+
+    Raises:
+        ConfigError: a value that is not a finite number or out of range (one line naming it); callers that
+            read it from a file catch it to name the file.
     """
 
     lat0_deg: float
     lon0_deg: float
     alt0_m: float = 0.0
+
+    def __post_init__(self):
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or not isinstance(value, Real):
+                raise ConfigError(f"geo origin {f.name} {value!r} is not a number")
+            if not math.isfinite(value):
+                raise ConfigError(f"geo origin {f.name} {value!r} is not a finite number")
+        if not -90 < self.lat0_deg < 90:
+            raise ConfigError(f"geo origin latitude {self.lat0_deg:g} is outside -90 < lat < 90 degrees")
+        if not -180 <= self.lon0_deg <= 180:
+            raise ConfigError(f"geo origin longitude {self.lon0_deg:g} is outside -180 <= lon <= 180 degrees")
 
     @property
     def scale(self) -> float:

@@ -13,12 +13,25 @@ from pathlib import Path
 
 import numpy as np
 
-from featmap.errors import InputFileError
+from featmap.errors import ConfigError, InputFileError
 from featmap.evaluation.truth_metrics import GroundTruth
 from featmap.geo import GeoFrame, reproject, reproject_segments
 from featmap.io.geojson import features_of, wgs84_position
 from featmap.io.jsonfile import read_json
 from featmap.io.sim_truth import coverage_of_frames, read_objects_local, read_simulation_json, read_walls_csv
+
+
+def simulation_frame(truth_dir: str | Path) -> GeoFrame:
+    """The local frame of a simulated drive, from its ``truth/simulation.json`` ``geo_origin``; a one-line
+    InputFileError naming that file when it is missing, malformed or off the earth."""
+    truth_dir = Path(truth_dir)
+    sim = read_simulation_json(truth_dir)
+    try:
+        return GeoFrame(**sim["geo_origin"])
+    except (KeyError, TypeError):
+        raise InputFileError(truth_dir / "simulation.json", "missing or malformed 'geo_origin'") from None
+    except ConfigError as exc:
+        raise InputFileError(truth_dir / "simulation.json", f"malformed 'geo_origin' ({exc})") from None
 
 
 def load_simulator_truth(truth_dir: str | Path, frame: GeoFrame | None = None,
@@ -31,11 +44,7 @@ def load_simulator_truth(truth_dir: str | Path, frame: GeoFrame | None = None,
         frames: count only what these frames observed (default: the whole drive).
     """
     truth_dir = Path(truth_dir)
-    sim = read_simulation_json(truth_dir)
-    try:
-        src = GeoFrame(**sim["geo_origin"])
-    except (KeyError, TypeError):
-        raise InputFileError(truth_dir / "simulation.json", "missing or malformed 'geo_origin'") from None
+    src = simulation_frame(truth_dir)
     table = read_walls_csv(truth_dir / "walls.csv")
     frame = frame or src
     walls = reproject_segments(table.walls, src, frame)

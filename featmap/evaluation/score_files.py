@@ -5,10 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from featmap.errors import FeatmapError, InputFileError
-from featmap.evaluation.references import load_simulator_truth, truth_from_footprints
+from featmap.evaluation.references import load_simulator_truth, simulation_frame, truth_from_footprints
 from featmap.evaluation.truth_metrics import truth_metrics
 from featmap.geo import GeoFrame
-from featmap.io.sim_truth import is_truth_folder, read_simulation_json
+from featmap.io.sim_truth import is_truth_folder
 
 
 def parse_origin(origin: str) -> GeoFrame:
@@ -16,9 +16,10 @@ def parse_origin(origin: str) -> GeoFrame:
         lat, lon = (float(v) for v in origin.split(","))
     except ValueError:
         raise FeatmapError(f"--origin {origin!r}: expected LAT,LON, e.g. 49.011,8.424") from None
-    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
-        raise FeatmapError(f"--origin {origin!r}: latitude must be in [-90, 90] and longitude in [-180, 180]")
-    return GeoFrame(lat, lon)
+    try:
+        return GeoFrame(lat, lon)
+    except FeatmapError as exc:          # not finite, or off the earth (the projection has no poles)
+        raise FeatmapError(f"--origin {origin!r}: {exc}") from None
 
 
 def _frame_for_csv(fused: Path, origin: str | None) -> GeoFrame | None:
@@ -47,7 +48,7 @@ def evaluate_file(fused: str | Path, truth: str | Path, origin: str | None = Non
     if truth.is_dir() and not is_truth_folder(truth):
         raise InputFileError(truth, "not a simulated drive's truth/ folder (walls.csv and simulation.json expected)")
     if fused.suffix.lower() in (".geojson", ".json"):
-        frame = first_position(truth) if truth.is_file() else GeoFrame(**read_simulation_json(truth)["geo_origin"])
+        frame = first_position(truth) if truth.is_file() else simulation_frame(truth)
         segments, _ = read_segments_geojson(fused, frame)
     else:
         frame = _frame_for_csv(fused, origin)

@@ -107,7 +107,7 @@ class MergedRecord(_Model):
 
 
 def _write(path: str | Path, model: BaseModel) -> Path:
-    return atomic_write_text(path, json.dumps(model.model_dump(mode="json"), indent=1))
+    return atomic_write_text(path, json.dumps(model.model_dump(mode="json"), indent=1, allow_nan=False))
 
 
 def _read(path: str | Path, model: type[BaseModel], what: str):

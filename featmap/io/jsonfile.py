@@ -14,16 +14,23 @@ Model = TypeVar("Model", bound=BaseModel)
 
 
 def read_json(path: str | Path, missing: str = "file not found") -> Any:
-    """Parse the JSON file at ``path``; ``missing`` is the message when it does not exist."""
+    """Parse the JSON file at ``path``; ``missing`` is the message when it does not exist.
+
+    ``NaN``, ``Infinity`` and ``-Infinity`` (which Python's json module accepts but JSON does not have) are a
+    one-line error naming the file and the constant, so no non-finite number gets past the reader."""
     path = Path(path)
     try:
-        return json.loads(path.read_text())
+        return json.loads(path.read_text(), parse_constant=lambda constant: _not_finite(path, constant))
     except FileNotFoundError:
         raise InputFileError(path, missing) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputFileError(path, f"cannot read ({exc})") from None
     except json.JSONDecodeError as exc:
         raise InputFileError(path, f"not valid JSON ({exc.msg})", line=exc.lineno) from None
+
+
+def _not_finite(path: Path, constant: str):
+    raise InputFileError(path, f"not valid JSON ({constant} is not a finite number)")
 
 
 def validate_record(path: str | Path, data: Any, model: type[Model], what: str) -> Model:

@@ -40,8 +40,11 @@ class SourceRecord(_Model):
 
 
 class GeoRecord(_Model):
-    lat0_deg: float
-    lon0_deg: float
+    """The run's :class:`GeoFrame`; its range checks here, so a bad one is an error naming the file."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    lat0_deg: float = Field(gt=-90, lt=90)
+    lon0_deg: float = Field(ge=-180, le=180)
     alt0_m: float = 0.0
 
     def frame(self) -> GeoFrame:
@@ -112,7 +115,7 @@ class RunMetrics(_Model):
 
 
 def write_run_metrics(path: str | Path, metrics: RunMetrics) -> Path:
-    return atomic_write_text(path, json.dumps(metrics.model_dump(mode="json"), indent=1))
+    return atomic_write_text(path, json.dumps(metrics.model_dump(mode="json"), indent=1, allow_nan=False))
 
 
 def read_run_metrics(path: str | Path) -> RunMetrics:

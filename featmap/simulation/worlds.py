@@ -46,7 +46,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
 
-from featmap.errors import WorldError
+from featmap.errors import FeatmapError, WorldError
 
 WORLDS_DIR = Path(__file__).resolve().parents[1] / "resources" / "worlds"
 KINDS = ("building", "fence", "car", "pole", "tree", "hedge")
@@ -249,7 +249,10 @@ def _world_from_geojson(data: dict, path: str) -> dict:
     if not route_feats:
         raise WorldError(f"{path}: no LineString feature with properties.kind = 'route'")
     lon0, lat0 = route_feats[0]["geometry"]["coordinates"][0][:2]
-    frame = GeoFrame(lat0, lon0)
+    try:
+        frame = GeoFrame(lat0, lon0)
+    except FeatmapError as exc:     # not a number, or off the earth
+        raise WorldError(f"{path}: the route's first position: {exc}") from None
 
     def local(coords):
         arr = np.asarray(coords, float)[:, :2]
@@ -313,6 +316,10 @@ def resolve_world_path(name_or_file: str | Path) -> Path:
 MAX_EXTENDS_DEPTH = 4
 
 
+def _not_finite(constant: str):
+    raise ValueError(f"{constant} is not a finite number")
+
+
 def _read_world_mapping(path: Path) -> dict:
     """The raw mapping of a YAML or GeoJSON world file (GeoJSON converted to the YAML form)."""
     try:
@@ -321,7 +328,7 @@ def _read_world_mapping(path: Path) -> dict:
         raise WorldError(f"{path}: cannot read ({exc.strerror})") from None
     if path.suffix.lower() in (".geojson", ".json"):
         try:
-            return _world_from_geojson(json.loads(text), str(path))
+            return _world_from_geojson(json.loads(text, parse_constant=_not_finite), str(path))
         except json.JSONDecodeError as exc:
             raise WorldError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg})") from None
         except (KeyError, TypeError, IndexError, ValueError, AttributeError) as exc:

@@ -1,10 +1,14 @@
 """Bad input files and flags: one line naming the file or flag, exit 2, nothing written."""
 
 import json
+import math
+import shutil
 
 import numpy as np
 import pytest
 
+from featmap.errors import ConfigError
+from featmap.geo import GeoFrame
 from featmap.io.segments_csv import SegmentTable, read_fused_csv, write_segments_csv
 from featmap.simulation.segments import observe_walls
 from tests.faults.conftest import cli, one_line_error, run_args
@@ -136,7 +140,7 @@ def _fused_run(case1_drive, tmp_path):
     ([{"type": "Feature", "properties": {}, "geometry": {"type": "Polygon", "coordinates": [[["8.42", "49.01"], [8.43, 49.01], [8.43, 49.02]]]}}],
      "a position must be [lon, lat] numbers"),
     ([{"type": "Feature", "properties": {}, "geometry": {"type": "Polygon", "coordinates": [[[8.42, 49.01], [None, 49.01], [8.43, 49.02]]]}}],
-     "a position is not finite ([nan, 49.01])"),
+     "fp.geojson: not valid JSON (NaN is not a finite number)"),                 # read_json refuses NaN
     ([], "no building Polygon in the FeatureCollection"),
 ])
 def test_evaluate_against_bad_footprints(case1_drive, tmp_path, features, needle):
@@ -283,3 +287,75 @@ def test_an_interrupted_simulation_leaves_no_folders(tmp_path):
     with pytest.raises(KeyboardInterrupt):
         simulate_drive(load_world("prescan_case1"), tmp_path / "sim", SENSORS["hdl64"], 3, progress=interrupted)
     assert not (tmp_path / "sim").exists()
+
+
+def _line_map(path, frame: GeoFrame):
+    """A one-segment map (GeoJSON, WGS84) 10 m east of ``frame``'s origin."""
+    lat, lon = frame.to_wgs84([0.0, 10.0], [0.0, 0.0])
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": [{
+        "type": "Feature", "properties": {},
+        "geometry": {"type": "LineString", "coordinates": [[float(lon[0]), float(lat[0])], [float(lon[1]), float(lat[1])]]}}]}))
+    return path
+
+
+@pytest.mark.parametrize("edit,needle", [
+    (lambda sim: sim.pop("geo_origin"), "simulation.json: missing or malformed 'geo_origin'"),
+    (lambda sim: sim.update(geo_origin=None), "simulation.json: missing or malformed 'geo_origin'"),
+    (lambda sim: sim.update(geo_origin={"lat": 49.0, "lon": 8.4}), "simulation.json: missing or malformed 'geo_origin'"),
+    (lambda sim: sim.update(geo_origin={"lat0_deg": "49", "lon0_deg": 8.4}), "simulation.json: malformed 'geo_origin' "
+                                                                                "(geo origin lat0_deg '49' is not a number)"),
+    (lambda sim: sim.update(geo_origin={"lat0_deg": 95, "lon0_deg": 8.4}), "simulation.json: malformed 'geo_origin' "
+                                                                              "(geo origin latitude 95 is outside"),
+    (lambda sim: sim["geo_origin"].update(lat0_deg=math.nan), "simulation.json: not valid JSON (NaN is not a finite number)"),
+])
+def test_evaluate_against_a_truth_folder_with_a_bad_geo_origin(case1_drive, tmp_path, edit, needle):
+    truth = shutil.copytree(case1_drive.drive_dir / "truth", tmp_path / "truth")
+    sim = json.loads((truth / "simulation.json").read_text())
+    fused = _line_map(tmp_path / "map.geojson", GeoFrame(**sim["geo_origin"]))
+    assert cli("evaluate", fused, "--truth", truth).exit_code == 0              # the intact folder scores
+    edit(sim)
+    (truth / "simulation.json").write_text(json.dumps(sim))
+    one_line_error(cli("evaluate", fused, "--truth", truth), needle)
+    (tmp_path / "fused_proposed.csv").write_text("x1,y1,x2,y2,support\n0,0,10,0,3\n")
+    one_line_error(cli("evaluate", tmp_path / "fused_proposed.csv", "--truth", truth, "--origin", "49.0,8.4"), needle)
+
+
+@pytest.mark.parametrize("constant", ["NaN", "Infinity", "-Infinity"])
+def test_json_inputs_with_non_finite_numbers_are_one_line(tmp_path, constant):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "metrics.json").write_text(f'{{"schema_version": 2, "geo_frame": {{"lat0_deg": {constant}, "lon0_deg": 8.4}}}}')
+    needle = f"metrics.json: not valid JSON ({constant} is not a finite number)"
+    one_line_error(cli("compare", run), needle)
+    one_line_error(cli("figures", run, "--out", tmp_path / "f"), needle)
+    assert not (tmp_path / "f").exists()
+    footprints = _line_map(tmp_path / "fp.geojson", GeoFrame(49.0, 8.4))
+    (run / "fused_proposed.csv").write_text("x1,y1,x2,y2,support\n0,0,10,0,3\n")     # its frame: from metrics.json
+    one_line_error(cli("evaluate", run / "fused_proposed.csv", "--truth", footprints, "--out", tmp_path / "m.json"), needle)
+    assert not (tmp_path / "m.json").exists()
+
+
+@pytest.mark.parametrize("args,needle", [
+    ((math.nan, 8.4), "lat0_deg nan is not a finite number"),
+    ((49.0, math.inf), "lon0_deg inf is not a finite number"),
+    ((49.0, 8.4, -math.inf), "alt0_m -inf is not a finite number"),
+    (("49", 8.4), "lat0_deg '49' is not a number"),
+    ((True, 8.4), "lat0_deg True is not a number"),
+    ((90.0, 8.4), "latitude 90 is outside -90 < lat < 90 degrees"),
+    ((49.0, -180.5), "longitude -180.5 is outside -180 <= lon <= 180 degrees"),
+])
+def test_a_geo_frame_off_the_earth_is_refused(args, needle):
+    with pytest.raises(ConfigError, match=f"^geo origin {needle}"):
+        GeoFrame(*args)
+    assert GeoFrame(np.float64(-89.9), np.float32(180.0), -10).lon0_deg == 180.0      # numpy and the range's edges
+
+
+@pytest.mark.parametrize("lat,lon", [(95.0, 8.4), (-90.0, 8.4), (49.0, 180.5), (math.nan, 8.4), (49.0, math.inf)])
+def test_a_metrics_files_geo_frame_is_checked_where_it_is_read(lat, lon):
+    """metrics.json's geo_frame gets GeoFrame's checks on validation, so the error names the file."""
+    from pydantic import ValidationError
+
+    from featmap.io.run_metrics import GeoRecord
+
+    with pytest.raises(ValidationError, match="lat0_deg|lon0_deg"):
+        GeoRecord(lat0_deg=lat, lon0_deg=lon)

@@ -75,6 +75,13 @@ def test_malformed_geojson_world_is_one_line(tmp_path):
     path.write_text('{"type": "FeatureCollection", "features": [')
     with pytest.raises(WorldError, match=r"bad.geojson:1: not valid JSON"):
         load_world(path)
+    route = '{"type": "FeatureCollection", "features": [{"properties": {"kind": "route"}, "geometry": {"coordinates": [%s]}}]}'
+    path.write_text(route % "[8.4, NaN], [8.5, 49.0]")
+    with pytest.raises(WorldError, match=r"bad.geojson: malformed GeoJSON feature \(ValueError: NaN is not a finite number\)"):
+        load_world(path)
+    path.write_text(route % "[8.4, 91.0], [8.5, 49.0]")
+    with pytest.raises(WorldError, match=r"bad.geojson: the route's first position: geo origin latitude 91 is outside"):
+        load_world(path)
 
 
 def test_a_world_extends_another_with_its_own_route(tmp_path):
