@@ -2,7 +2,8 @@
 
 A run writes into a temporary sibling (``.NAME.partial-PID``) and swaps it in place of ``--out`` at the
 end, so a crash, a full disk or Ctrl-C leaves the previous run folder as it was (never a mix of two
-runs). A lock file beside it (``.NAME.lock``) makes a second run into the same folder fail at once.
+runs). A lock file beside it (``.NAME.lock``, removed when the run ends) makes a second run into the same folder
+fail at once. An ``--out`` that is a symbolic link is written where it points.
 Opening checks that the folder can be written, and that it is empty or a folder this command wrote
 before (it holds the ``marker`` file) with nothing added since (its ``MANIFEST`` lists what the run
 wrote): a run never replaces a folder of other files (the input log beside it, a user's notes) nor the
@@ -56,8 +57,11 @@ class RunFolder:
         self.inputs = [Path(p) for p in inputs]
         self.tmp: Path | None = None
         self._lock_fd: int | None = None
+        self._lock_path: Path | None = None
 
     def __enter__(self) -> "RunFolder":
+        if self.out.is_symlink():     # write where the link points: the swap must not replace the link itself
+            self.out = Path(os.path.realpath(self.out))
         out = self.out
         if out.exists() and not out.is_dir():
             raise RunFolderError(f"--out {out}: exists and is not a folder")
@@ -85,17 +89,7 @@ class RunFolder:
             raise RunFolderError(f"--out {out}: {file_in_the_way(parent) or parent} is a file, not a folder") from None
         except OSError as exc:
             raise RunFolderError(f"--out {out}: cannot create {parent} ({exc.strerror})") from None
-        lock = parent / f".{out.name}.lock"
-        try:
-            self._lock_fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            raise RunFolderError(f"--out {out}: cannot write in {parent} ({exc.strerror})") from None
-        try:
-            fcntl.flock(self._lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(self._lock_fd)
-            self._lock_fd = None
-            raise RunFolderError(f"--out {out}: another featmap run is writing to it; wait for it or choose another --out") from None
+        self._lock(parent / f".{out.name}.lock")
         self.tmp = parent / f".{out.name}.partial-{os.getpid()}"
         try:
             self._remove_leftovers(parent, out.name)
@@ -137,8 +131,35 @@ class RunFolder:
         shutil.rmtree(old, ignore_errors=True)
         self.tmp = None
 
+    def _lock(self, lock: Path) -> None:
+        """Hold ``lock`` (flock) for the run; removed again when the run ends. A run that opened the file just
+        before the previous holder removed it locks a deleted file: it sees that and opens the new one."""
+        while True:
+            try:
+                fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+            except OSError as exc:
+                raise RunFolderError(f"--out {self.out}: cannot write in {lock.parent} ({exc.strerror})") from None
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                raise RunFolderError(f"--out {self.out}: another featmap run is writing to it; wait for it or "
+                                     "choose another --out") from None
+            try:
+                same = os.stat(lock).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                self._lock_fd, self._lock_path = fd, lock
+                return
+            os.close(fd)
+
     def _release(self) -> None:
         if self._lock_fd is not None:
+            try:
+                os.unlink(self._lock_path)        # while still holding it: see _lock
+            except OSError:
+                pass
             fcntl.flock(self._lock_fd, fcntl.LOCK_UN)
             os.close(self._lock_fd)
             self._lock_fd = None

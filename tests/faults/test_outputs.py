@@ -60,7 +60,7 @@ def test_a_full_disk_mid_run_keeps_the_previous_run_whole(case1_drive, tmp_path,
     res = cli(*run_args(case1_drive, out, tmp_path / "c", "--method", "proposed,density", "--frames", "0:40"))
     one_line_error(res, "No space left on device")
     assert contract_files(out) == before                               # the previous run, not a mix of two
-    assert sorted(p.name for p in disk.iterdir()) == [".run.lock", "filler", "run"]
+    assert sorted(p.name for p in disk.iterdir()) == ["filler", "run"]
 
 
 def test_a_full_disk_for_fuse_writes_nothing_half(tmp_path, small_disk):
@@ -126,3 +126,19 @@ def test_a_rerun_refuses_to_delete_files_added_to_its_folder(case1_drive, tmp_pa
     (tmp_path / "r" / "notes.txt").unlink()
     assert cli(*args).exit_code == 0
     assert not (tmp_path / "r" / "figures").exists()          # stale figures go with the run they were made from
+
+
+def test_a_full_disk_at_the_sweep_logs_header_leaves_no_log_that_refuses_the_next_sweep(tmp_path, small_disk):
+    """The log's header is written whole or not at all: a header cut short by a full disk would make every
+    later sweep into the folder fail as 'another sweep's'."""
+    spec = tmp_path / "s.yaml"
+    spec.write_text(f"input: {_segments(tmp_path)}\nmethods: [proposed]\ngrid:\n  fusion.proposed.eta_m: [0.2, 0.5]\n")
+    disk = small_disk("64k")
+    free = shutil.disk_usage(disk).free
+    (disk / "filler").write_bytes(b"\0" * max(0, free - 6000))         # one page left; the header needs two
+    one_line_error(cli("sweep", spec, "--out", disk / "sweep", "--workers", "1"), "No space left on device")
+    assert not list(disk.rglob("results.jsonl")) and not list(disk.rglob("*.tmp"))
+    (disk / "filler").unlink()
+    assert cli("sweep", spec, "--out", disk / "sweep", "--workers", "1").exit_code == 0
+    log = (disk / "sweep" / "results.jsonl").read_text().splitlines()
+    assert "sweep" in json.loads(log[0]) and len(log) == 3

@@ -15,7 +15,21 @@ def test_commit_replaces_the_folder_whole(tmp_path):
         assert (out / "metrics.json").read_text() == "old"          # nothing changes before the commit
         folder.commit()
     assert sorted(p.name for p in out.iterdir()) == [MANIFEST, "metrics.json"] and (out / "metrics.json").read_text() == "new"
-    assert sorted(p.name for p in tmp_path.iterdir()) == [".run.lock", "run"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]                 # no lock file left beside it
+
+
+def test_an_out_that_is_a_link_is_written_where_it_points(tmp_path):
+    target = tmp_path / "disk" / "run"
+    target.mkdir(parents=True)
+    (target / "metrics.json").write_text("old")
+    link = tmp_path / "run"
+    link.symlink_to(target, target_is_directory=True)
+    with RunFolder(link) as folder:
+        (folder.tmp / "metrics.json").write_text("new")
+        folder.commit()
+    assert link.is_symlink() and (target / "metrics.json").read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["disk", "run"]
+    assert sorted(p.name for p in target.parent.iterdir()) == ["run"]          # no .run.old-PID, no lock
 
 
 def test_a_failure_leaves_the_previous_run_untouched(tmp_path):
@@ -38,6 +52,32 @@ def test_a_second_run_into_the_same_folder_fails_at_once(tmp_path):
                 pass
     with RunFolder(out) as folder:                                  # released afterwards
         folder.commit()
+
+
+def test_a_run_waiting_on_a_removed_lock_file_takes_the_new_one(tmp_path, monkeypatch):
+    # the first run removes its lock file as it ends; a run that had opened that file just before must not
+    # hold a lock nobody else can see: it opens the lock file again
+    import os
+
+    out = tmp_path / "run"
+    first = RunFolder(out).__enter__()
+    real_open, opened = os.open, []
+
+    def open_then_first_run_ends(path, *args, **kwargs):
+        fd = real_open(path, *args, **kwargs)
+        if not opened:
+            opened.append(path)
+            first.__exit__(None, None, None)              # unlinks the file this run has just opened
+        return fd
+
+    monkeypatch.setattr(os, "open", open_then_first_run_ends)
+    with RunFolder(out) as second:
+        monkeypatch.undo()
+        assert (tmp_path / ".run.lock").exists()          # the lock it holds is the one a third run would see
+        with pytest.raises(RunFolderError, match="another featmap run"):
+            with RunFolder(out):
+                pass
+        second.commit()
     assert out.is_dir()
 
 
