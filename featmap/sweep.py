@@ -51,6 +51,7 @@ from featmap.config import apply_overrides, closest_key, leaf_keys, read_yaml_ma
 from featmap.errors import ConfigError, FeatmapError
 from featmap.evaluation import Evaluator, Reference
 from featmap.fusion import FUSION_METHODS, fuse
+from featmap.io.atomic import atomic_write_text
 from featmap.io.segments_csv import SegmentTable
 from featmap.pipeline.config import FeatmapConfig, config_from_dict, resolve_config_path
 from featmap.pipeline.executor import Executor, SerialExecutor
@@ -290,8 +291,6 @@ def _read_log(log: Path, identity: dict, out: Path) -> dict[str, dict]:
         except (json.JSONDecodeError, KeyError, TypeError):
             broken = True       # a line cut short by an interruption
     if broken:
-        from featmap.io.atomic import atomic_write_text
-
         atomic_write_text(log, "".join(json.dumps(r) + "\n" for r in [header, *done.values()]))
     return done
 
@@ -303,8 +302,8 @@ def run_sweep(combos: list[Combination], configs: dict[str, FeatmapConfig], inpu
     out.mkdir(parents=True, exist_ok=True)
     log = out / "results.jsonl"
     done = _read_log(log, identity, out) if log.exists() else {}
-    if not log.exists():
-        log.write_text(json.dumps({"sweep": identity}) + "\n")
+    if not log.exists():        # the header whole or not at all (a cut one would refuse every resume)
+        atomic_write_text(log, json.dumps({"sweep": identity}) + "\n")
     todo = [c for c in combos if c.key not in done]
     by_key = {c.key: c for c in combos}
     shared = executor.share(inputs) if todo and hasattr(executor, "share") else inputs   # sent once to a cluster
@@ -453,13 +452,15 @@ def run_sweep_file(spec_path: str | Path, out: str | Path, executor: Executor = 
                    overrides: list[str] = (), cache_dir: str | Path = "data/cache") -> tuple[list[dict], dict | None]:
     """Validate, run (resumably), and write ``sweep.csv``, ``best.yaml`` and the plots into ``out``.
 
+    ``out`` then holds this sweep's outputs only: a ``best.yaml`` or plot an earlier sweep into it wrote
+    and this one does not (another grid's) is removed; other files are left alone.
+
     The base config is the sweep file's ``base``, or ``config_path`` when given, then ``overrides``.
     """
     import csv
     import io
 
     from featmap import __version__
-    from featmap.io.atomic import atomic_write_text
     from featmap.plotting.sweep_plots import plot_sweep
 
     spec_path = Path(spec_path)
@@ -498,5 +499,7 @@ def run_sweep_file(spec_path: str | Path, out: str | Path, executor: Executor = 
         header = (f"# best of {len(rows)} combinations for {spec.select.goal} {spec.select.metric} "
                   f"= {best[spec.select.metric]:.4f} (method {best['method']}); use with --config\n")
         atomic_write_text(out / "best.yaml", header + cfg.to_yaml())
+    elif (out / "best.yaml").is_file():
+        (out / "best.yaml").unlink()              # an earlier grid's best, not this sweep's
     plot_sweep(rows, keys, out, spec.select.metric if inputs.reference is not None else "count")
     return rows, best

@@ -123,6 +123,33 @@ grid:
     assert float(dens[20.0]["count"]) <= float(dens[0.5]["count"])
 
 
+def test_a_sweep_of_another_grid_into_the_same_folder_leaves_no_plot_of_the_first(tmp_path, case1_run):
+    """The folder then holds this sweep's plots only (the first grid's heatmap and curves are removed, as is
+    its best.yaml when this one has none); files featmap does not write stay. The log resumes across both."""
+    from featmap.plotting.sweep_plots import PLOT_NAMES
+
+    out = tmp_path / "out"
+    first = _write(tmp_path, f"input: {case1_run / 'segments.csv'}\nmethods: [proposed]\n"
+                             "grid:\n  fusion.proposed.delta_deg: [2, 5]\n  fusion.proposed.gamma: [0.0, 0.5]\n")
+    run_sweep_file(first, out)
+    assert {p.name for p in out.iterdir()} >= set(PLOT_NAMES) | {"best.yaml"}
+    (out / "notes.txt").write_text("mine")
+    (out / "heatmap_mine.png").write_bytes(b"x")
+    # one combination (no curve, no heatmap), selected by a metric a ground truth does not give (the
+    # truth-free compression): no best either
+    second = tmp_path / "second.yaml"
+    second.write_text(f"input: {case1_run / 'segments.csv'}\nmethods: [proposed]\n"
+                      "grid:\n  fusion.proposed.delta_deg: [5]\nselect: {metric: compression}\n")
+    rows, best = run_sweep_file(second, out)
+    assert len(rows) == 1 and best is None
+    assert sorted(p.name for p in out.iterdir()) == ["heatmap_mine.png", "notes.txt", "pareto.png", "results.jsonl",
+                                                     "sweep.csv"]
+    assert (out / "notes.txt").read_text() == "mine" and (out / "heatmap_mine.png").read_bytes() == b"x"
+    assert len(list(csv.DictReader(open(out / "sweep.csv")))) == 1
+    log = (out / "results.jsonl").read_text().splitlines()
+    assert len(log) == 1 + 4 + 1 and "sweep" in json.loads(log[0])     # one header, both grids' rows
+
+
 def test_pareto_front():
     import numpy as np
 

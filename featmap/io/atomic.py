@@ -6,7 +6,7 @@ import contextlib
 import os
 import tempfile
 from pathlib import Path
-from typing import Iterator
+from typing import Iterable, Iterator
 
 
 @contextlib.contextmanager
@@ -68,3 +68,13 @@ def remove_empty_folders(folders: list[Path]) -> None:
             folder.rmdir()
         except OSError:
             return
+
+
+def remove_unwritten(folder: str | Path, names: Iterable[str], written: Iterable[str | Path]) -> None:
+    """Remove the files of ``names`` in ``folder`` that are not among ``written`` (paths or names): what an
+    earlier call into the same folder wrote and this one did not. Files outside ``names`` are never touched."""
+    kept = {Path(p).name for p in written}
+    for name in set(names) - kept:
+        path = Path(folder) / name
+        if path.is_file():
+            path.unlink()

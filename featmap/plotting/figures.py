@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from featmap.fusion import fuse
-from featmap.io.atomic import atomic_write_text
+from featmap.io.atomic import atomic_write_text, remove_unwritten
 from featmap.io.segments_csv import SegmentTable
 from featmap.plotting.basemap import Tiles
 from featmap.plotting.maps import draw_feature_circles, draw_method, draw_truth, draw_walls_3d, view_box
@@ -26,6 +26,12 @@ from featmap.plotting.style import (SEGMENT_COLOR, add_scalebar, draw_segments, 
                                     method_label, method_linestyle, new_figure, save_png)
 
 LOCAL_HALF_M = 30.0
+FIGURE_FILES = ("fig02_feature_circles_one_scan.png", "fig03_feature_circles_two_scans.png", "fig06_cluster_fusion.png",
+                "fig07_corner_optimisation.png", "fig08_global_map.png", "fig09_local_maps_3d.png",
+                "fig10_local_maps_2d.png", "fig10_counts.csv", "fig11_local_maps_tiles.png",
+                "fig13_14_truth_vs_fused.png")
+"""Every file ``make_figures`` may write. Figs. 6-7 need the proposed method and Figs. 13-14 a ground
+truth: one a call did not write is an earlier call's into the same folder, and is removed (nothing else is)."""
 
 
 @dataclass(frozen=True)
@@ -314,7 +320,11 @@ def write_local_map_counts(results: dict, centres: np.ndarray, out: Path) -> Pat
 
 
 def make_figures(run: FigureInputs, out: str | Path) -> list[Path]:
-    """Every figure for one run, written into ``out``; returns the paths."""
+    """Every figure for one run, written into ``out``; returns the paths.
+
+    Afterwards ``out`` holds this call's figures only among ``FIGURE_FILES`` (an earlier call's Fig. 6 or
+    Figs. 13-14, say, that this run's methods or reference do not make are removed); other files stay.
+    """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     results = {name: fuse(name, run.segments.segments, run.segments.scan, run.fusion, rms=run.segments.extra.get("rms"))
@@ -333,4 +343,5 @@ def make_figures(run: FigureInputs, out: str | Path) -> list[Path]:
     p = fig_truth_comparison(run, results, out)
     if p is not None:
         paths.append(p)
+    remove_unwritten(out, FIGURE_FILES, paths)
     return paths

@@ -6,7 +6,12 @@ from pathlib import Path
 
 import numpy as np
 
+from featmap.io.atomic import remove_unwritten
 from featmap.plotting.style import method_color, method_label, new_figure, save_png
+
+PLOT_NAMES = ("heatmap_delta_gamma.png", "curves.png", "pareto.png")
+"""Every plot a sweep may write. Which of them it writes depends on its grid and rows; one it did not
+write this time is another sweep's into the same folder, and is removed (nothing else is)."""
 
 
 def pareto_front(points: np.ndarray) -> np.ndarray:
@@ -33,7 +38,11 @@ def _mean_table(rows, x_key, y_key, value):
 
 
 def plot_sweep(rows: list[dict], keys: list[str], out: Path, metric: str) -> list[Path]:
-    """Heatmap over delta x gamma, a curve per swept key and the Pareto plot, as PNGs in ``out``."""
+    """Heatmap over delta x gamma, a curve per swept key and the Pareto plot, as PNGs in ``out``.
+
+    Afterwards ``out`` holds the plots of these rows only: a plot of ``PLOT_NAMES`` not drawn for them (a
+    previous sweep's, e.g. the heatmap of a grid that swept delta and gamma) is removed.
+    """
     paths = []
     proposed = [r for r in rows if r["method"] == "proposed"]
     dkey, gkey = "fusion.proposed.delta_deg", "fusion.proposed.gamma"
@@ -99,6 +108,7 @@ def plot_sweep(rows: list[dict], keys: list[str], out: Path, metric: str) -> lis
         ax.legend()
         save_png(fig, out / "pareto.png")
         paths.append(out / "pareto.png")
+    remove_unwritten(out, PLOT_NAMES, paths)
     return paths
 
 

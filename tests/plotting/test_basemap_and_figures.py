@@ -164,3 +164,45 @@ def test_the_basemap_warning_keeps_the_gist_of_a_long_error():
     assert _short(RuntimeError(long)) == ("HTTPSConnectionPool(host='tile.example.org', port=443): Max retries "
                                           "exceeded with url: /18/1/2.png")
     assert _short(RuntimeError("word " * 60)).endswith("word ...")
+
+
+def test_figures_again_into_the_same_folder_leave_none_of_the_earlier_call(tmp_path, monkeypatch):
+    """A second ``make_figures`` that makes fewer figures (no proposed method: no Figs. 6-7; no truth: no
+    Figs. 13-14) removes the earlier call's, and only featmap's figure names: a user's files stay."""
+    from dataclasses import replace
+
+    from matplotlib.figure import Figure
+
+    import featmap.plotting.figures as figures
+    from featmap.evaluation.truth_metrics import GroundTruth
+    from featmap.io.atomic import atomic_write_bytes
+    from featmap.io.segments_csv import SegmentTable
+    from featmap.pipeline import load_config
+    from featmap.plotting.figures import FIGURE_FILES, FigureInputs, make_figures
+    from featmap.simulation.segments import observe_walls
+
+    def save_png(fig, path):                                   # the figures are drawn, not rendered (fast)
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+        return atomic_write_bytes(path, b"png")
+
+    monkeypatch.setattr(figures, "save_png", save_png)
+    monkeypatch.setattr(Figure, "tight_layout", lambda self, *args, **kwargs: None)
+    walls = np.array([[0, 0, 20, 0], [20, 0, 20, 12], [20, 12, 0, 12]], float)
+    segs, scan = observe_walls(walls, 6, 0.03, np.random.default_rng(0), first_scan=np.zeros(3, int))
+    truth = GroundTruth(walls, np.zeros(3, int), np.array([["a", "b"], ["b", "c"], ["c", "d"]]),
+                        [[(0.0, 20.0)], [(0.0, 12.0)], [(0.0, 20.0)]], np.full(3, 100))
+    trajectory = np.column_stack([np.linspace(2, 18, 6), np.full(6, 6.0)])
+    run = FigureInputs(SegmentTable(scan=scan, segments=segs), ["proposed"], load_config(None).fusion,
+                       trajectory, None, truth, Tiles(cache_dir=None))
+    out = tmp_path / "figures"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    (out / "fig99_my_own.png").write_bytes(b"x")
+    assert {p.name for p in make_figures(run, out)} == set(FIGURE_FILES)
+    second = {p.name for p in make_figures(replace(run, methods=["density"], truth=None), out)}
+    assert {"fig06_cluster_fusion.png", "fig07_corner_optimisation.png", "fig13_14_truth_vs_fused.png"}.isdisjoint(second)
+    assert sorted(p.name for p in out.iterdir()) == sorted(second | {"notes.txt", "fig99_my_own.png"})
+    assert (out / "notes.txt").read_text() == "mine" and (out / "fig99_my_own.png").read_bytes() == b"x"
+    assert (out / "fig10_counts.csv").read_text().splitlines()[0] == "map,density"
