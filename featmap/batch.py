@@ -41,6 +41,8 @@ totals and the graph's critical path.
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import glob
 import hashlib
 import json
@@ -68,6 +70,10 @@ from featmap.reporting import NullReporter, RecordingReporter, Reporter
 
 KEY_FILE = "batch.json"
 MERGED = "merged"
+SUMMARY_FILE = "summary.json"
+ERRORS_FILE = "errors.txt"
+BATCH_ENTRIES = (MERGED, SUMMARY_FILE, ERRORS_FILE)
+"""What a batch writes at the top of its output folder besides the drives' run folders: no drive may be named so."""
 GLOB_CHARS = set("*?[")
 
 
@@ -255,6 +261,57 @@ def _builtin_dir() -> Path:
     return WORLDS_DIR
 
 
+def _run_folder_evidence(folder: Path) -> Optional[str]:
+    """The file that makes ``folder`` a folder written whole by one featmap command (``featmap run``'s
+    ``metrics.json`` with its ``config.yaml``, or the list of entries any run folder keeps, ``MANIFEST``),
+    or None."""
+    from featmap.pipeline.run_folder import MANIFEST
+
+    if (folder / MANIFEST).is_file():
+        return MANIFEST
+    if (folder / "metrics.json").is_file() and (folder / "config.yaml").is_file():
+        return "metrics.json"
+    return None
+
+
+def _leftover(name: str) -> bool:
+    """A run folder's lock file or temporary twin (``.NAME.lock``, ``.NAME.partial-PID``, ``.NAME.old-PID``)."""
+    return name.startswith(".") and (name.endswith(".lock") or ".partial-" in name or ".old-" in name)
+
+
+def _is_batch_folder(folder: Path) -> bool:
+    """``folder`` is a batch's output: its summary, its merged map, or a drive's run folder with its key
+    (a batch stopped before the summary)."""
+    if (folder / SUMMARY_FILE).is_file() or (folder / MERGED / "merged.json").is_file():
+        return True
+    return any(entry.is_dir() and (entry / KEY_FILE).is_file() for entry in folder.iterdir())
+
+
+def check_batch_folder(folder: str | Path, what: str = "--out") -> None:
+    """Fail (one line naming ``what`` and the folder) unless ``folder`` is new, empty (but for the leftovers of
+    killed runs) or a batch's own output folder (which the batch resumes): a batch never mixes its run
+    folders with a run folder's files, nor with other files, nor writes inside a run folder (a new run of it
+    would replace the folder whole)."""
+    folder = Path(folder)
+    for above in [folder, *folder.absolute().parents]:
+        evidence = _run_folder_evidence(above) if above.is_dir() else None
+        if evidence is None:
+            continue
+        where = "is" if above == folder else f"is inside {above}, which is"
+        raise ConfigError(f"{what} {folder}: {where} the output folder of a featmap run (it holds {evidence}), not "
+                          "of a batch; give a new or empty folder, or an earlier batch's output folder")
+    if not folder.is_dir():
+        return
+    try:
+        entries = [p.name for p in folder.iterdir() if not _leftover(p.name)]
+        if entries and not _is_batch_folder(folder):
+            raise ConfigError(f"{what} {folder}: holds other files (such as {sorted(entries)[0]}) and is not a "
+                              f"featmap batch output folder (no {SUMMARY_FILE}); give a new or empty folder, or an "
+                              "earlier batch's output folder")
+    except OSError as exc:
+        raise ConfigError(f"{what} {folder}: cannot read it ({exc.strerror or exc})") from None
+
+
 def plan_batch(path: str | Path, out: str | Path | None = None, config: str | Path | None = None,
                overrides: list[str] = (), scheduler: str | None = None) -> BatchPlan:
     """Validate a batch file and resolve every drive (globs, names, configs, absolute paths).
@@ -265,7 +322,8 @@ def plan_batch(path: str | Path, out: str | Path | None = None, config: str | Pa
         overrides: ``--set`` overrides for every drive (after the file's ``set``).
         scheduler: replaces the file's ``scheduler``.
     Raises:
-        ConfigError: a bad key, value, glob, world, config or duplicate drive name (nothing has run).
+        ConfigError: a bad key, value, glob, world, config or duplicate drive name, or an output folder that
+            is not new, empty or an earlier batch's (:func:`check_batch_folder`) (nothing has run).
     """
     from featmap.datasets import DATASETS
     from featmap.fusion import resolve_methods
@@ -277,7 +335,9 @@ def plan_batch(path: str | Path, out: str | Path | None = None, config: str | Pa
     except ConfigError as exc:
         raise ConfigError(f"{path}: methods: {exc}") from None
     folder = Path(out or spec.out or Path("runs") / "batch" / path.stem)
-    check_folder_path(folder, "--out" if out else f"{path}: out")
+    what = "--out" if out else f"{path}: out"
+    check_folder_path(folder, what)
+    check_batch_folder(folder, what)
     out = folder.absolute()
     cache_dir = str(Path(spec.cache_dir).expanduser().absolute())
     sim_root = Path(spec.sim_root).expanduser().absolute()
@@ -299,8 +359,11 @@ def plan_batch(path: str | Path, out: str | Path | None = None, config: str | Pa
             raise ConfigError(f"{path}: drives[{index}]: 'name' names one drive, but the entry matches {len(sources)}")
         for default_name, source, world in sources:
             name = entry.name or default_name
-            if not name or "/" in name or name.startswith(".") or name == MERGED:
+            if not name or "/" in name or name.startswith("."):
                 raise ConfigError(f"{path}: drives[{index}]: {name!r} cannot be a run folder name; give another 'name'")
+            if name in BATCH_ENTRIES:
+                raise ConfigError(f"{path}: drives[{index}]: {name!r} cannot be a run folder name: the batch writes its "
+                                  f"own {name} in {out}; give another 'name'")
             if name in seen:
                 raise ConfigError(f"{path}: drives[{index}]: a second drive named {name!r} (drives[{seen[name]}]); "
                                   "give each a different 'name'")
@@ -440,10 +503,14 @@ def drive_key(task: DriveTask, location: str) -> DriveKey:
 
 
 def _is_up_to_date(out: Path, key: DriveKey) -> bool:
+    """The run folder ``out`` was made with ``key`` and holds every file the merge reads from it (a folder
+    missing one, e.g. half deleted or copied, is run again)."""
     if not (out / KEY_FILE).is_file() or not (out / "metrics.json").is_file():
         return False
     try:
-        return read_drive_key(out / KEY_FILE).key == key.key
+        if read_drive_key(out / KEY_FILE).key != key.key:
+            return False
+        return all((out / name).is_file() for name in merge_reads(out, key.methods))
     except FeatmapError:
         return False
 
@@ -559,6 +626,23 @@ class MergedInputs:
         if self.alignment is not None:
             fused = self.alignment.segments(fused, np.full(len(fused), index))
         return fused
+
+
+def merge_reads(run_dir: str | Path, methods) -> list[str]:
+    """The files of a drive's run folder the merge reads (:func:`merged_inputs`, :meth:`MergedInputs.drive_map`
+    and, for the map metric, :func:`drive_points`): ``batch.json``, ``metrics.json``, ``config.yaml``,
+    ``segments.csv``, ``trajectory.csv``, ``fused_<method>.csv`` of each method, and ``pose_corrections.csv``
+    when the run refined its poses (its metrics.json says so).
+
+    Raises:
+        FeatmapError: the run's metrics.json is unreadable.
+    """
+    from featmap.io.run_metrics import read_run_metrics
+
+    refinement = read_run_metrics(Path(run_dir) / "metrics.json").refinement
+    return [KEY_FILE, "metrics.json", "config.yaml", "segments.csv", "trajectory.csv",
+            *(f"fused_{m}.csv" for m in methods),
+            *(["pose_corrections.csv"] if refinement is not None and refinement.method != "none" else [])]
 
 
 def merged_inputs(run_dirs: list[tuple[str, str | Path]], align=None) -> MergedInputs:
@@ -812,6 +896,43 @@ def merge_task(run_dirs: list[tuple[str, str]], out: str, methods: tuple[str, ..
     return record
 
 
+@dataclass(frozen=True)
+class MergeOutcome:
+    """What the merge task reports back: the merged map's record, or why there is none.
+
+    Attributes:
+        record: the merged map's record (None: the merge failed).
+        error: the failure in one line.
+        known: the failure is a FeatmapError or OSError (the user's to fix, e.g. a file in the way), not a bug.
+        detail: the traceback of an unexpected exception.
+    """
+
+    record: Optional[MergedRecord] = None
+    error: Optional[str] = None
+    known: bool = False
+    detail: Optional[str] = None
+
+
+def merge_outcome_task(run_dirs: list[tuple[str, str]], out: str, methods: tuple[str, ...], config: dict,
+                       cache_dir: str | None = None) -> MergeOutcome:
+    """Dask task: :func:`merge_task`, never raising (as a drive task): an exception is returned as one line
+    (and a traceback in ``detail`` when it is not a FeatmapError or OSError), so no worker logs it."""
+    try:
+        return MergeOutcome(merge_task(run_dirs, out, methods, config, cache_dir))
+    except Exception as exc:
+        known = isinstance(exc, (FeatmapError, OSError))
+        return MergeOutcome(error=_one_line(exc), known=known, detail=None if known else traceback.format_exc())
+
+
+class MergeError(FeatmapError):
+    """The merged map could not be written for a reason the user can fix (the drives' run folders and the
+    summary are written); ``result`` is the batch's result."""
+
+    def __init__(self, message: str, result: "BatchResult"):
+        super().__init__(message)
+        self.result = result
+
+
 def _plain(scores: dict) -> dict:
     """Nested score dicts with only numbers (or None) at the leaves (as metrics.json keeps them)."""
     return {k: _plain(v) if isinstance(v, dict) else v for k, v in scores.items()
@@ -879,9 +1000,79 @@ def local_cluster(workers: int | None = None):
     from distributed import LocalCluster
 
     n = workers or os.cpu_count() or 1
-    with dask.config.set(WORKER_ENVIRON_UNSET):
+    with dask.config.set(WORKER_ENVIRON_UNSET), _closed_on_interrupt():
         return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                             dashboard_address=None, silence_logs=40)
+
+
+def _default_client():
+    from distributed import default_client
+
+    try:
+        return default_client()
+    except ValueError:
+        return None
+
+
+@contextlib.contextmanager
+def _closed_on_interrupt():
+    """Ctrl-C (KeyboardInterrupt) inside the block: close every Dask cluster and the default client started in
+    it, then re-raise. A LocalCluster interrupted while it starts is otherwise left half-started, and Dask's
+    exit hook fails closing it (an ``AssertionError: Status.init`` traceback after featmap's own message)."""
+    from distributed.deploy.spec import SpecCluster
+
+    clusters = set(SpecCluster._instances)
+    client = _default_client()
+    try:
+        yield
+    except KeyboardInterrupt:
+        started = _default_client()
+        if started is not None and started is not client:
+            with contextlib.suppress(Exception, asyncio.CancelledError):
+                started.close(timeout=5)
+        for cluster in set(SpecCluster._instances) - clusters:
+            _abort_cluster(cluster)
+        raise
+
+
+def _abort_cluster(cluster) -> None:
+    """Close a cluster whose start was interrupted: wait for the workers still starting (their start is not
+    cancelled with the cluster's), close every worker it made, then the cluster (its scheduler), and take it
+    off the list Dask's exit hook closes."""
+    from distributed.core import Status
+    from distributed.deploy.spec import SpecCluster
+
+    def retrieve(task) -> None:                        # a worker's start that failed (its process got the
+        if not task.cancelled():                        # Ctrl-C too): no "exception never retrieved" log
+            task.exception()
+
+    async def settle() -> None:
+        for task in asyncio.all_tasks():                # the cluster's loop: the workers' starts under way
+            coro = task.get_coro()
+            if task is not asyncio.current_task() and getattr(coro, "__name__", "") == "_wrap_awaitable":
+                task.add_done_callback(retrieve)
+        for worker in list(getattr(cluster, "_created", ())):
+            lock = getattr(worker, "_startup_lock", None)
+            if lock is not None:
+                async with lock:                        # its start, if one is under way, ends
+                    pass
+            if worker.status not in (Status.closing, Status.closed, Status.failed):
+                await worker.close()
+        waiting = getattr(cluster, "_correct_state_waiting", None)
+        if waiting is not None and waiting.done():      # the interrupted start of the workers
+            cluster._correct_state_waiting = None
+        if cluster.status == Status.starting:           # interrupted while the scheduler started
+            cluster.status = Status.failed              # (so close() closes the scheduler too)
+
+    try:
+        with contextlib.suppress(Exception, asyncio.CancelledError):
+            cluster.sync(settle, callback_timeout=30)
+        with contextlib.suppress(Exception, asyncio.CancelledError):
+            cluster.close(timeout=30)
+    finally:
+        SpecCluster._instances.discard(cluster)
+        with contextlib.suppress(Exception):
+            cluster._loop_runner.stop()
 
 
 def run_batch(plan: BatchPlan, client, reporter: Reporter = NullReporter()) -> BatchResult:
@@ -889,6 +1080,11 @@ def run_batch(plan: BatchPlan, client, reporter: Reporter = NullReporter()) -> B
 
     Progress: one bar of scans extracted (or found up to date) across drives; a line per finished drive;
     workers' warnings prefixed with their drive.
+
+    Raises:
+        MergeError: the merge failed with a FeatmapError or OSError (e.g. a file in the way in ``OUT/merged``),
+            after the summary is written and reported (another failure of the merge is a warning, its
+            traceback in ``OUT/errors.txt``).
     """
     from distributed import as_completed
 
@@ -946,15 +1142,20 @@ def run_batch(plan: BatchPlan, client, reporter: Reporter = NullReporter()) -> B
         ordered.append(DriveOutcome(record, outcome.warnings, outcome.detail))
     merged = None
     merge_seconds = None
+    merge = MergeOutcome()
     usable = [(o.record.name, o.record.run_dir) for o in ordered if o.record.status != "failed"]
     if plan.merge and usable:
-        merge_future = client.submit(merge_task, usable, str(plan.out / MERGED), plan.methods, plan.merge_config,
-                                     plan.cache_dir, pure=False, key=f"merge-{uuid.uuid4().hex[:6]}")
+        merge_future = client.submit(merge_outcome_task, usable, str(plan.out / MERGED), plan.methods,
+                                     plan.merge_config, plan.cache_dir, pure=False, key=f"merge-{uuid.uuid4().hex[:6]}")
         try:
-            merged = merge_future.result()
+            merge = merge_future.result()
+        except Exception as exc:                # the worker died (KilledWorker), or the task could not run
+            merge = MergeOutcome(error=_one_line(exc))
+        merged = merge.record
+        if merged is not None:
             merge_seconds = merged.seconds
-        except Exception as exc:
-            reporter.warning(f"merged map: {_one_line(exc)}")
+        elif not merge.known:                   # a known error is raised below, after the summary
+            reporter.warning(f"merged map: {merge.error}")
     elif plan.merge:
         reporter.warning("merged map: no drive finished, nothing to merge")
     if merged is None and (plan.out / MERGED / "merged.json").exists():
@@ -969,14 +1170,20 @@ def run_batch(plan: BatchPlan, client, reporter: Reporter = NullReporter()) -> B
         work_cpu_seconds=round(sum(r.cpu_seconds for r in records), 3),
         critical_path_seconds=round(max(chains) + (merge_seconds or 0.0), 3), merge_seconds=merge_seconds,
         merged=str(plan.out / MERGED) if merged is not None else None)
-    write_batch_summary(plan.out / "summary.json", summary)
+    write_batch_summary(plan.out / SUMMARY_FILE, summary)
     details = {o.record.name: o.detail for o in ordered if o.detail}
+    if merge.detail:
+        details[MERGED] = merge.detail            # no drive has this name
     if details:
-        atomic_write_text(plan.out / "errors.txt", "".join(f"== {k}\n{v}\n" for k, v in details.items()))
+        atomic_write_text(plan.out / ERRORS_FILE, "".join(f"== {k}\n{v}\n" for k, v in details.items()))
     else:
-        (plan.out / "errors.txt").unlink(missing_ok=True)      # an earlier batch's tracebacks are not this one's
+        (plan.out / ERRORS_FILE).unlink(missing_ok=True)      # an earlier batch's tracebacks are not this one's
     result = BatchResult(summary, ordered, merged)
     report_batch(result, reporter)
+    if merge.known:
+        failed = len(result.failed)
+        raise MergeError(f"merged map: {merge.error} (the drives' run folders and {plan.out / SUMMARY_FILE} are "
+                         f"written{f'; {failed} drive(s) failed' if failed else ''})", result)
     return result
 
 
@@ -1050,12 +1257,13 @@ def connect(scheduler: str | None, workers: int | None = None, timeout_s: float 
     """(client, cluster): a client of the scheduler at ``scheduler`` (cluster None), or of a new LocalCluster."""
     from distributed import Client
 
-    if scheduler:
-        try:
-            return Client(scheduler, timeout=f"{timeout_s}s"), None
-        except (OSError, TimeoutError) as exc:
-            raise ConfigError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
-        except (ValueError, TypeError) as exc:     # distributed's address parser: no port, unknown scheme
-            raise ConfigError(f"--scheduler {scheduler}: not a scheduler address such as tcp://HOST:8786 ({exc})") from None
-    cluster = local_cluster(workers)
-    return Client(cluster), cluster
+    with _closed_on_interrupt():                    # Ctrl-C while it starts: nothing is left half-started
+        if scheduler:
+            try:
+                return Client(scheduler, timeout=f"{timeout_s}s"), None
+            except (OSError, TimeoutError) as exc:
+                raise ConfigError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+            except (ValueError, TypeError) as exc:     # distributed's address parser: no port, unknown scheme
+                raise ConfigError(f"--scheduler {scheduler}: not a scheduler address such as tcp://HOST:8786 ({exc})") from None
+        cluster = local_cluster(workers)
+        return Client(cluster), cluster

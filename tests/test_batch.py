@@ -222,6 +222,77 @@ def test_a_rerun_resumes_skipping_finished_drives(first_batch, dask_client, tmp_
     assert [d.status for d in fifth.summary.drives] == ["skipped", "done", "skipped"]
 
 
+def test_a_drive_folder_missing_a_file_the_merge_reads_is_run_again(first_batch, dask_client, tmp_path):
+    """A drive's folder with its key but without a file the merge reads (half deleted, copied in part) is
+    not up to date: the drive runs again, and the merge finds what it needs."""
+    from featmap.batch import _is_up_to_date, merge_reads
+
+    tmp, plan, _, _ = first_batch
+    out = tmp_path / "out"
+    shutil.copytree(tmp / "out", out)
+    tiny = out / "tiny"
+    key = read_drive_key(tiny / "batch.json")
+    needed = merge_reads(tiny, key.methods)
+    assert {"segments.csv", "metrics.json", "config.yaml", "trajectory.csv", "pose_corrections.csv",
+            "fused_proposed.csv", "fused_density.csv", "batch.json"} == set(needed)    # the drives refined their poses
+    assert _is_up_to_date(tiny, key)
+    for name in needed:
+        (tiny / name).rename(tmp_path / name)
+        assert not _is_up_to_date(tiny, key), name
+        (tmp_path / name).rename(tiny / name)
+    (tiny / "metrics.json").write_text("{")                       # unreadable: run again, not a failed drive
+    assert not _is_up_to_date(tiny, key)
+    shutil.copy(tmp / "out" / "tiny" / "metrics.json", tiny / "metrics.json")
+
+    (tiny / "segments.csv").unlink()
+    (out / "tiny_b" / "fused_density.csv").unlink()
+    result = run_batch(plan_batch(plan.path, out), dask_client, RecordingReporter())
+    assert [d.status for d in result.summary.drives] == ["done", "done", "skipped"]
+    assert (tiny / "segments.csv").is_file() and (out / "tiny_b" / "fused_density.csv").is_file()
+    assert [d.name for d in result.merged.drives] == ["tiny", "tiny_b", "tiny_c"]
+
+
+def test_a_merge_that_fails_is_one_line_after_the_summary(first_batch, dask_client, tmp_path):
+    """A FeatmapError of the merge task comes back as one line (no worker traceback): the summary is written
+    and reported, then the CLI prints the error on one line and exits 2."""
+    tmp, plan, _, _ = first_batch
+    out = tmp_path / "out"
+    shutil.copytree(tmp / "out", out)
+    (out / "merged" / "notes.txt").write_text("mine")             # a file the merge would delete
+    (out / "summary.json").unlink()
+    res = runner.invoke(app, ["batch", str(plan.path), "--out", str(out), "--scheduler", dask_client.scheduler.address])
+    assert res.exit_code == 2, res.output
+    errors = [line for line in res.output.splitlines() if line.startswith("featmap: error:")]
+    assert len(errors) == 1 and "Traceback" not in res.output
+    assert errors[0].startswith(f"featmap: error: merged map: --out {out / 'merged'}: holds notes.txt")
+    assert "summary.json are written)" in " ".join(res.output.split())
+    summary = read_batch_summary(out / "summary.json")
+    assert len(summary.drives) == 3 and not any(d.status == "failed" for d in summary.drives)   # (an earlier
+    assert summary.merged is None                                  # test touches tiny_b's data: it may run again)
+    assert (out / "merged" / "notes.txt").read_text() == "mine" and not (out / "errors.txt").exists()
+
+
+def test_the_merge_task_returns_its_errors(first_batch, tmp_path, monkeypatch):
+    """As a drive task: a known error in one line; an unexpected one with its traceback (for errors.txt)."""
+    import featmap.batch as batch
+
+    tmp, plan, _, _ = first_batch
+    outcome = batch.merge_outcome_task([("gone", str(tmp_path / "gone"))], str(tmp_path / "merged"), ("proposed",),
+                                       plan.merge_config)
+    assert outcome.record is None and outcome.known and outcome.detail is None
+    assert outcome.error == f"{tmp_path / 'gone' / 'metrics.json'}: not found: is this a featmap run folder? " \
+                            "(featmap run writes it)"
+
+    def bug(*args):
+        raise ZeroDivisionError("a bug")
+
+    monkeypatch.setattr(batch, "merge_task", bug)
+    outcome = batch.merge_outcome_task([("tiny", str(tmp / "out" / "tiny"))], str(tmp_path / "merged"), ("proposed",),
+                                       plan.merge_config)
+    assert outcome.error == "ZeroDivisionError: a bug" and not outcome.known
+    assert "Traceback" in outcome.detail and "ZeroDivisionError" in outcome.detail
+
+
 def test_outputs_of_an_earlier_batch_are_not_passed_off_as_this_ones(first_batch, dask_client, tmp_path):
     """A batch that writes no merged map warns that OUT/merged is an earlier batch's; an earlier batch's
     errors.txt goes when this one has no traceback to report."""
