@@ -8,6 +8,41 @@ from pathlib import Path
 
 import pytest
 
+@pytest.fixture(autouse=True)
+def _no_traffic_beyond_this_machine(monkeypatch):
+    """Tests talk to 127.0.0.1 only (a local tile server, a local Dask scheduler): a connection or a name lookup
+    for any other host is refused at once, so the code under test takes its offline path (e.g. the overview
+    falls back to the ground truth with a warning) and no test depends on, or sends traffic to, the outside."""
+    import ipaddress
+    import socket
+
+    def local(host) -> bool:
+        if host in (None, "", b"", "localhost", b"localhost"):
+            return True
+        try:
+            return ipaddress.ip_address((host.decode() if isinstance(host, bytes) else str(host)).split("%")[0]).is_loopback
+        except ValueError:
+            return False
+
+    def guard(real):
+        def connect(sock, address, *args):
+            if sock.family in (socket.AF_INET, socket.AF_INET6) and not local(address[0]):
+                raise ConnectionRefusedError(111, f"the tests do not connect to {address[0]}")
+            return real(sock, address, *args)
+        return connect
+
+    real_getaddrinfo = socket.getaddrinfo
+
+    def getaddrinfo(host, *args, **kwargs):
+        if not local(host):
+            raise socket.gaierror(socket.EAI_NONAME, f"the tests do not look up {host}")
+        return real_getaddrinfo(host, *args, **kwargs)
+
+    monkeypatch.setattr(socket.socket, "connect", guard(socket.socket.connect))
+    monkeypatch.setattr(socket.socket, "connect_ex", guard(socket.socket.connect_ex))
+    monkeypatch.setattr(socket, "getaddrinfo", getaddrinfo)
+
+
 SHARED = Path(os.environ.get("FEATMAP_SHARED", Path(__file__).resolve().parents[1] / ".." / "shared")) / "data"
 
 
