@@ -149,7 +149,7 @@ def _pydantic_message(exc: ValidationError, path: Path, model: type[BaseModel]) 
 def load_batch(path: str | Path) -> BatchSpec:
     """Read and validate a batch file; a one-line ConfigError naming the file and key otherwise."""
     path = Path(path)
-    data = read_yaml_mapping(path)
+    data = read_yaml_mapping(path, "batch file")
     try:
         return BatchSpec.model_validate(data)
     except ValidationError as exc:

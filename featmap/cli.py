@@ -289,9 +289,11 @@ def figures(
     """Write the paper's figures (2-3, 6-11, 13-14) for one run (its Tables 1-3: featmap compare)."""
     from featmap.outputs import tiles_of
     from featmap.pipeline.config import config_from_dict, load_config
-    from featmap.pipeline.run_folder import load_run
+    from featmap.pipeline.run_folder import check_folder_path, load_run
     from featmap.plotting.figures import FigureInputs, make_figures
 
+    if out is not None:
+        check_folder_path(out)
     cfg = None
     if config is not None or set_ or tiles is not None:   # the run's own config, changed where asked
         from featmap.config import apply_overrides

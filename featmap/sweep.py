@@ -150,7 +150,7 @@ class Combination:
 
 def load_sweep(path: str | Path) -> SweepSpec:
     path = Path(path)
-    data = read_yaml_mapping(path)
+    data = read_yaml_mapping(path, "sweep file")
     try:
         return SweepSpec.model_validate(data)
     except ValidationError as exc:
@@ -399,7 +399,7 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
     elif spec.drive == "default":
         source_spec = SourceSpec("simulated", "residential", spec.frames)
     else:
-        date, drive_id = parse_drive(spec.drive)
+        date, drive_id = parse_drive(spec.drive, f"{spec_path}: drive:")
         source_spec = SourceSpec("kitti_raw", str(Path(spec.data_dir) / date / f"{spec.drive}_sync"), spec.frames)
     source = open_source(source_spec, reporter)
     extraction = extract_source(source, base.extraction, SegmentStore(cache_dir), executor, reporter)

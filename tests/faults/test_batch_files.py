@@ -60,7 +60,7 @@ def test_bad_batch_files(batch, tmp_path, tiny_worlds, text, needle):
 
 
 def test_a_missing_batch_file_and_a_bad_flag(tmp_path, batch):
-    one_line_error(cli("batch", tmp_path / "none.yaml"), "none.yaml: config file not found")
+    one_line_error(cli("batch", tmp_path / "none.yaml"), "none.yaml: batch file not found")
     path = batch("drives:\n  - world: WORLDS/tiny.yaml\n")
     one_line_error(cli("batch", path, "--set", "fusion.nope=1", "--out", tmp_path / "out"), "--set fusion.nope=1")
     one_line_error(cli("batch", path, "--config", tmp_path / "missing.yaml", "--out", tmp_path / "out"), "missing.yaml")

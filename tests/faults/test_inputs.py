@@ -184,7 +184,11 @@ def test_figures_of_a_run_with_a_damaged_trajectory(case1_drive, tmp_path):
 
 
 def test_bad_sweep_files(tmp_path, segments_csv):
-    one_line_error(cli("sweep", tmp_path / "none.yaml"), "none.yaml: config file not found")
+    one_line_error(cli("sweep", tmp_path / "none.yaml"), "none.yaml: sweep file not found")
+    bad_drive = tmp_path / "drive.yaml"
+    bad_drive.write_text("drive: bogus\nmethods: [proposed]\ngrid: {fusion.proposed.gamma: [0.5]}\n")
+    one_line_error(cli("sweep", bad_drive, "--out", tmp_path / "s"),        # the file's key, not a --drive flag
+                   f"{bad_drive}: drive: 'bogus': expected YYYY_MM_DD_drive_NNNN")
     huge = tmp_path / "huge.yaml"
     grid = "".join(f"  fusion.proposed.{k}: {{start: 0, stop: 1, num: 10000}}\n" for k in ("gamma", "eta_m"))
     grid += "  fusion.proposed.delta_deg: {start: 1, stop: 90, num: 10000}\n"

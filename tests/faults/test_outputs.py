@@ -35,7 +35,7 @@ def test_out_is_a_file_for_every_command(case1_drive, tmp_path):
 def test_figures_and_evaluate_outputs_that_cannot_be_written(case1_drive, tmp_path):
     assert cli(*run_args(case1_drive, tmp_path / "r", tmp_path / "c", "--method", "proposed", "--frames", "0:10")).exit_code == 0
     (tmp_path / "afile").write_text("x")
-    one_line_error(cli("figures", tmp_path / "r", "--out", tmp_path / "afile"), "afile")
+    one_line_error(cli("figures", tmp_path / "r", "--out", tmp_path / "afile"), f"--out {tmp_path / 'afile'}: {tmp_path / 'afile'} exists and is not a folder")
     truth = case1_drive.drive_dir / "truth"
     one_line_error(cli("evaluate", tmp_path / "r" / "fused_proposed.csv", "--truth", truth, "--out", tmp_path),
                    "is a folder; give a .json file path")
