@@ -175,7 +175,8 @@ def yaml_problem(exc: Exception) -> str:
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):
-    """PyYAML's safe loader, except that a key given twice in one mapping is an error (PyYAML keeps the last)."""
+    """PyYAML's safe loader, except that a key given twice in one mapping is an error (PyYAML keeps the last)
+    and that 1e3 is a number (below)."""
 
     def construct_mapping(self, node, deep=False):
         seen = set()
@@ -189,6 +190,10 @@ class _UniqueKeyLoader(yaml.SafeLoader):
             if duplicate:
                 raise yaml.constructor.ConstructorError(None, None, f"{key!r} is given twice", key_node.start_mark)
         return super().construct_mapping(node, deep)
+
+
+# YAML 1.1 (PyYAML) reads 1e3 and 5e-1, numbers without a dot, as strings; read them as numbers (as --set does)
+_UniqueKeyLoader.add_implicit_resolver("tag:yaml.org,2002:float", _EXPONENT_NUMBER, list("-+0123456789."))
 
 
 def read_yaml_mapping(path: str | Path, what: str = "config file") -> dict[str, Any]:

@@ -117,3 +117,14 @@ def test_a_key_given_twice_in_a_yaml_file_is_an_error_naming_its_line(tmp_path):
         load_config(path)
     path.write_text("fusion:\n  proposed:\n    delta_deg: 7\n  meanshift: {}\n")            # same name, other mappings
     assert load_config(path).fusion.proposed.delta_deg == 7
+
+
+def test_numbers_with_an_exponent_and_no_dot_are_numbers_in_yaml_files(tmp_path):
+    # PyYAML (YAML 1.1) reads 5e-1 as the string '5e-1'; a config file means the number, as --set does
+    path = tmp_path / "c.yaml"
+    path.write_text("fusion:\n  proposed:\n    eta_m: 5e-1\n    delta_deg: 1e1\n")
+    config = load_config(path)
+    assert config.fusion.proposed.eta_m == 0.5 and config.fusion.proposed.delta_deg == 10.0
+    path.write_text("output:\n  tile_source: '1e3'\n")                 # quoted: still the text
+    with pytest.raises(ConfigError, match="unknown tile source '1e3'"):
+        load_config(path)
