@@ -191,7 +191,7 @@ def main() -> None:
 
             load = os.getloadavg()[0]
             write_tables(Path(__file__).resolve().parents[1] / "docs" / "batch.md", "batch_bench", tables,
-                         f"`.venv/bin/python benchmarks/bench_batch.py --docs` ({time.strftime('%Y-%m-%d')}, "
+                         f"`.venv/bin/python benchmarks/bench_batch.py {' '.join(sys.argv[1:])}` ({time.strftime('%Y-%m-%d')}, "
                          f"{platform.machine()}, {os.cpu_count()} cores, load {load:.1f} at the end); {scaling}")
             console.print("wrote the tables into docs/batch.md")
 
