@@ -52,7 +52,7 @@ import traceback
 import uuid
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Optional, Union
+from typing import Any, Iterable, Optional, Union
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -279,19 +279,24 @@ def _leftover(name: str) -> bool:
     return name.startswith(".") and (name.endswith(".lock") or ".partial-" in name or ".old-" in name)
 
 
-def _is_batch_folder(folder: Path) -> bool:
-    """``folder`` is a batch's output: its summary, its merged map, or a drive's run folder with its key
-    (a batch stopped before the summary)."""
+def _is_batch_folder(folder: Path, drive_names: Iterable[str] = ()) -> bool:
+    """``folder`` is a batch's output: its summary, its merged map, a drive's run folder with its key (a batch
+    stopped before the summary), or the run folder of one of ``drive_names`` (a batch stopped between
+    swapping that folder in and writing its key)."""
     if (folder / SUMMARY_FILE).is_file() or (folder / MERGED / "merged.json").is_file():
         return True
-    return any(entry.is_dir() and (entry / KEY_FILE).is_file() for entry in folder.iterdir())
+    names = set(drive_names)
+    return any(entry.is_dir() and ((entry / KEY_FILE).is_file()
+                                   or (entry.name in names and _run_folder_evidence(entry) is not None))
+               for entry in folder.iterdir())
 
 
-def check_batch_folder(folder: str | Path, what: str = "--out") -> None:
+def check_batch_folder(folder: str | Path, what: str = "--out", drive_names: Iterable[str] = ()) -> None:
     """Fail (one line naming ``what`` and the folder) unless ``folder`` is new, empty (but for the leftovers of
-    killed runs) or a batch's own output folder (which the batch resumes): a batch never mixes its run
-    folders with a run folder's files, nor with other files, nor writes inside a run folder (a new run of it
-    would replace the folder whole)."""
+    killed runs) or a batch's own output folder (which the batch resumes; ``drive_names``: the batch's
+    drives, whose run folders count as its own): a batch never mixes its run folders with a run folder's
+    files, nor with other files, nor writes inside a run folder (a new run of it would replace the folder
+    whole)."""
     folder = Path(folder)
     for above in [folder, *folder.absolute().parents]:
         evidence = _run_folder_evidence(above) if above.is_dir() else None
@@ -304,7 +309,7 @@ def check_batch_folder(folder: str | Path, what: str = "--out") -> None:
         return
     try:
         entries = [p.name for p in folder.iterdir() if not _leftover(p.name)]
-        if entries and not _is_batch_folder(folder):
+        if entries and not _is_batch_folder(folder, drive_names):
             raise ConfigError(f"{what} {folder}: holds other files (such as {sorted(entries)[0]}) and is not a "
                               f"featmap batch output folder (no {SUMMARY_FILE}); give a new or empty folder, or an "
                               "earlier batch's output folder")
@@ -337,7 +342,6 @@ def plan_batch(path: str | Path, out: str | Path | None = None, config: str | Pa
     folder = Path(out or spec.out or Path("runs") / "batch" / path.stem)
     what = "--out" if out else f"{path}: out"
     check_folder_path(folder, what)
-    check_batch_folder(folder, what)
     out = folder.absolute()
     cache_dir = str(Path(spec.cache_dir).expanduser().absolute())
     sim_root = Path(spec.sim_root).expanduser().absolute()
@@ -376,6 +380,7 @@ def plan_batch(path: str | Path, out: str | Path | None = None, config: str | Pa
                 raise ConfigError(f"{path}: drives[{index}] ({name}): {exc}") from None
             drives.append(DriveTask(name, source, cfg.model_dump(mode="json"), methods, str(out / name), cache_dir,
                                     world))
+    check_batch_folder(folder, what, seen)
     presets = {DATASETS[d.spec.kind].preset for d in drives}
     try:   # the merged map: the batch-level config (or the drives' common preset)
         merge_config = load_config(base or (presets.pop() if len(presets) == 1 else None), common)

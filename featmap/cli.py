@@ -77,6 +77,18 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
         print(warnings.formatwarning(message, category, filename, lineno, line), file=sys.stderr, end="")
 
 
+def _stdout_is_broken() -> bool:
+    """Standard output is a pipe whose reader has gone (poll reports an error on its write end)."""
+    import select
+
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poller.poll(0))
+    except (AttributeError, OSError, ValueError):      # no real file behind stdout (e.g. captured in tests)
+        return False
+
+
 def _quiet_stdout() -> None:
     """Point stdout at /dev/null so that flushing it at exit does not raise a second BrokenPipeError."""
     devnull = os.open(os.devnull, os.O_WRONLY)
@@ -94,9 +106,11 @@ def command(func):
                 return func(*args, **kwargs)
         except FeatmapError as exc:
             _fail(str(exc))
-        except BrokenPipeError:    # `featmap config | head`: the reader has gone; stop quietly, as Unix tools do
-            _quiet_stdout()
-            raise typer.Exit(code=141)
+        except BrokenPipeError as exc:
+            if _stdout_is_broken():    # `featmap config | head`: the reader has gone; stop quietly, as Unix tools do
+                _quiet_stdout()
+                raise typer.Exit(code=141)
+            _fail(f"{exc.filename}: {exc.strerror}" if exc.filename else str(exc.strerror or exc))
         except OSError as exc:     # the environment, not a bug: a full disk, a read-only folder, a vanished file
             where = f"{exc.filename}: " if exc.filename else ""
             _fail(f"{where}{exc.strerror or exc}")

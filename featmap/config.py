@@ -181,6 +181,8 @@ class _UniqueKeyLoader(yaml.SafeLoader):
     def construct_mapping(self, node, deep=False):
         seen = set()
         for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":   # '<<: *base' merges another mapping: not a key
+                continue
             key = self.construct_object(key_node, deep=deep)
             try:
                 duplicate = key in seen
@@ -193,7 +195,8 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 
 
 # YAML 1.1 (PyYAML) reads 1e3 and 5e-1, numbers without a dot, as strings; read them as numbers (as --set does)
-_UniqueKeyLoader.add_implicit_resolver("tag:yaml.org,2002:float", _EXPONENT_NUMBER, list("-+0123456789."))
+_UniqueKeyLoader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(rf"^(?:{_EXPONENT_NUMBER.pattern})$"),
+                                       list("-+0123456789."))
 
 
 def read_yaml_mapping(path: str | Path, what: str = "config file") -> dict[str, Any]:

@@ -63,9 +63,9 @@ class GeoFrame:
             if not math.isfinite(value):
                 raise ConfigError(f"geo origin {f.name} {value!r} is not a finite number")
         if not -90 < self.lat0_deg < 90:
-            raise ConfigError(f"geo origin latitude {self.lat0_deg:g} is outside -90 < lat < 90 degrees")
+            raise ConfigError(f"geo origin latitude {self.lat0_deg:.10g} is outside -90 < lat < 90 degrees")
         if not -180 <= self.lon0_deg <= 180:
-            raise ConfigError(f"geo origin longitude {self.lon0_deg:g} is outside -180 <= lon <= 180 degrees")
+            raise ConfigError(f"geo origin longitude {self.lon0_deg:.10g} is outside -180 <= lon <= 180 degrees")
 
     @property
     def scale(self) -> float:

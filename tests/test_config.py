@@ -128,3 +128,17 @@ def test_numbers_with_an_exponent_and_no_dot_are_numbers_in_yaml_files(tmp_path)
     path.write_text("output:\n  tile_source: '1e3'\n")                 # quoted: still the text
     with pytest.raises(ConfigError, match="unknown tile source '1e3'"):
         load_config(path)
+    path.write_text("output:\n  tile_source: 1e3x\n")                  # starts like a number: still text
+    with pytest.raises(ConfigError, match="unknown tile source '1e3x'"):
+        load_config(path)
+
+
+def test_yaml_merge_keys_are_not_duplicates(tmp_path):
+    from featmap.config import read_yaml_mapping
+
+    path = tmp_path / "c.yaml"
+    path.write_text("base: &b {delta_deg: 5, gamma: 0.3}\nfusion:\n  proposed: {<<: *b, gamma: 0.4}\n")
+    assert read_yaml_mapping(path)["fusion"] == {"proposed": {"delta_deg": 5, "gamma": 0.4}}
+    path.write_text("base: &b {delta_deg: 5}\nfusion:\n  proposed: {<<: *b, gamma: 0.4, gamma: 0.5}\n")
+    with pytest.raises(ConfigError, match="'gamma' is given twice"):
+        read_yaml_mapping(path)

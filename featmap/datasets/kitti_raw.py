@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from featmap.datasets.base import FrameSource, Scan, SourceNotes, select_frames
-from featmap.errors import DatasetError
+from featmap.errors import ConfigError, DatasetError
 from featmap.geo import GeoFrame
 from featmap.io.kitti_raw import (CALIB_FILES, drive_paths, read_calib_file, read_oxts_packet, read_rigid_calib,
                                   read_timestamps, read_velo_bin)
@@ -102,7 +102,10 @@ class KittiRawDataset(FrameSource):
         self._stamps = read_timestamps(self.drive_dir / "velodyne_points" / "timestamps.txt") \
             if (self.drive_dir / "velodyne_points" / "timestamps.txt").exists() else None
         first = self._raw.oxts[0].packet
-        self.geo_origin = GeoFrame(float(first.lat), float(first.lon), float(first.alt))
+        try:
+            self.geo_origin = GeoFrame(float(first.lat), float(first.lon), float(first.alt))
+        except ConfigError as exc:
+            raise DatasetError(f"{self.drive_dir / 'oxts' / 'data'}: the first OXTS packet: {exc}") from None
 
     # -- validation -----------------------------------------------------------------------------------
     def _check_layout(self) -> DriveCheck:

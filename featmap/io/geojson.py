@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from featmap.errors import InputFileError
+from featmap.errors import ConfigError, InputFileError
 from featmap.geo import GeoFrame
 from featmap.io.atomic import atomic_write_text
 from featmap.io.jsonfile import read_json
@@ -131,5 +131,8 @@ def first_position(path: str | Path) -> GeoFrame:
             coords = coords[0]
         if isinstance(coords, list) and coords:
             lon, lat = wgs84_position(coords, path, n)
-            return GeoFrame(lat, lon)
+            try:
+                return GeoFrame(lat, lon)
+            except ConfigError as exc:       # a pole: the local projection has none
+                raise InputFileError(path, f"feature {n}: {exc}") from None
     raise InputFileError(path, "no coordinates")

@@ -145,8 +145,9 @@ def test_an_out_that_is_a_run_folder_or_holds_other_files(tmp_path, batch):
 
 def test_an_earlier_batchs_out_is_resumed_into(tmp_path, batch):
     """New, empty, left by killed runs only, or an earlier batch's (with its summary, or stopped before it):
-    accepted."""
+    accepted; a folder holding a run folder that is none of the batch's drives is not."""
     from featmap.batch import plan_batch
+    from featmap.errors import ConfigError
 
     path = batch("drives:\n  - world: WORLDS/tiny.yaml\n")
     empty, leftovers, done, stopped = (tmp_path / n for n in ("empty", "leftovers", "done", "stopped"))
@@ -160,8 +161,14 @@ def test_an_earlier_batchs_out_is_resumed_into(tmp_path, batch):
     fake_run_folder(stopped / "tiny")
     (stopped / "tiny" / "batch.json").write_text("{}")
     fake_run_folder(stopped / "tiny_b")                            # killed before its key was written
-    for out in (tmp_path / "new", empty, leftovers, done, stopped):
+    keyless = tmp_path / "keyless"                                  # its only drive killed before its key
+    fake_run_folder(keyless / "tiny")
+    for out in (tmp_path / "new", empty, leftovers, done, stopped, keyless):
         assert plan_batch(path, out).out == out
+    stranger = tmp_path / "stranger"                                # a run folder that is none of its drives
+    fake_run_folder(stranger / "other")
+    with pytest.raises(ConfigError, match=r"holds other files \(such as other\) and is not a featmap batch output"):
+        plan_batch(path, stranger)
 
 
 @pytest.fixture

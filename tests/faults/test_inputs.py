@@ -356,7 +356,8 @@ def test_a_geo_frame_off_the_earth_is_refused(args, needle):
 
 @pytest.mark.parametrize("lat,lon", [(95.0, 8.4), (-90.0, 8.4), (49.0, 180.5), (math.nan, 8.4), (49.0, math.inf)])
 def test_a_metrics_files_geo_frame_is_checked_where_it_is_read(lat, lon):
-    """metrics.json's geo_frame gets GeoFrame's checks on validation, so the error names the file."""
+    """metrics.json's geo_frame record has GeoFrame's checks, so a bad one fails validation, which
+    read_run_metrics reports naming the file (as for every invalid record), not later in GeoFrame."""
     from pydantic import ValidationError
 
     from featmap.io.run_metrics import GeoRecord

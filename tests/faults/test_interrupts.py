@@ -79,3 +79,18 @@ def test_a_reader_that_goes_away_stops_featmap_quietly():
         os.close(write_end)
     assert process.returncode == 141, process.stderr
     assert process.stderr == ""                   # no "Broken pipe" error, no "Exception ignored" at exit
+
+
+def test_a_broken_pipe_that_is_not_standard_output_is_an_error(monkeypatch):
+    # e.g. a download's connection or a worker's pipe: a one-line error, not a silent exit
+    import errno
+
+    import featmap.pipeline.config
+
+    def broken():
+        raise BrokenPipeError(errno.EPIPE, "Broken pipe", "/tmp/worker.sock")
+
+    monkeypatch.setattr(featmap.pipeline.config, "default_config_yaml", broken)
+    result = cli("config")
+    assert result.exit_code == 2
+    assert result.output.strip().splitlines() == ["featmap: error: /tmp/worker.sock: Broken pipe"]

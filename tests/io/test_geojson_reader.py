@@ -82,3 +82,5 @@ def test_first_position_skips_features_without_coordinates_and_checks_the_rest(t
         first_position(_write(tmp_path, [{"type": "Feature", "geometry": "Polygon"}]))
     with pytest.raises(InputFileError, match=r"m.geojson: feature 0: a position must be \[lon, lat\] numbers"):
         first_position(_write(tmp_path, [{"type": "Feature", "geometry": {"type": "Point", "coordinates": ["8.4", 49.0]}}]))
+    with pytest.raises(InputFileError, match=r"m.geojson: feature 0: geo origin latitude 90 is outside"):
+        first_position(_write(tmp_path, [{"type": "Feature", "geometry": {"type": "Point", "coordinates": [8.4, 90.0]}}]))

@@ -52,6 +52,7 @@ def test_a_second_run_into_the_same_folder_fails_at_once(tmp_path):
                 pass
     with RunFolder(out) as folder:                                  # released afterwards
         folder.commit()
+    assert out.is_dir()
 
 
 def test_a_run_waiting_on_a_removed_lock_file_takes_the_new_one(tmp_path, monkeypatch):

@@ -174,3 +174,17 @@ def test_a_repeated_waypoint_counts_once():
     assert np.array_equal(fillet_polyline(repeated, 8.0), fillet_polyline(route, 8.0))
     positions, headings = sample_poses(repeated, 8.0, 8.0, 10.0)
     assert np.isfinite(positions).all() and np.isfinite(headings).all() and len(positions) > 30
+
+
+def test_a_drive_that_starts_across_the_date_line_is_placed_there(tmp_path):
+    # the world's origin just west of 180 deg, the first pose 50 m east of it: the drive's origin wraps to -180
+    world = world_from_dict({
+        "name": "dateline", "geo_origin": {"lat": 10.0, "lon": 179.9999},
+        "route": {"waypoints": [[50, 0], [60, 0]], "speed_mps": 8, "turn_radius_m": 0},
+        "objects": [{"id": "W", "kind": "building", "height": 8.0, "footprint": [[40, 12], [70, 12], [70, 13], [40, 13]]}],
+    }, "dateline.yaml")
+    drive = simulate_drive(world, tmp_path, SENSORS["vlp32"], n_frames=2, seed=0)
+    import json
+
+    origin = json.loads((drive.drive_dir / "truth" / "simulation.json").read_text())["geo_origin"]
+    assert -180.0 < origin["lon0_deg"] < -179.999 and origin["lat0_deg"] == pytest.approx(10.0, abs=1e-6)
