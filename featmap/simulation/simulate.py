@@ -299,7 +299,10 @@ def _simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_
     s0 = np.cos(np.deg2rad(world.geo_origin.lat))
     mx, my = latlon_to_mercator(world.geo_origin.lat, world.geo_origin.lon, s0)
     lat0, lon0 = mercator_to_latlon(mx + p0[0], my + p0[1], s0)
-    geo = GeoFrame(float(lat0), float((lon0 + 180.0) % 360.0 - 180.0), 100.0)   # across the date line: wrapped
+    lon0 = float(lon0)
+    if not -180.0 <= lon0 <= 180.0:       # the first pose across the date line: the same meridian, wrapped
+        lon0 = (lon0 + 180.0) % 360.0 - 180.0
+    geo = GeoFrame(float(lat0), lon0, 100.0)
 
     scene, index = build_scene(world)
     directions = sensor.ray_directions()
