@@ -65,7 +65,7 @@ from featmap.errors import ConfigError, FeatmapError, InputFileError
 from featmap.io.batch_records import (BatchSummary, DriveKey, DriveRecord, MergedDrive, MergedRecord,
                                       read_drive_key, write_batch_summary, write_drive_key, write_merged_record)
 from featmap.pipeline.config import load_config
-from featmap.pipeline.run_folder import check_folder_path
+from featmap.pipeline.run_folder import check_folder_path, is_leftover
 from featmap.reporting import NullReporter, RecordingReporter, Reporter
 
 KEY_FILE = "batch.json"
@@ -274,11 +274,6 @@ def _run_folder_evidence(folder: Path) -> Optional[str]:
     return None
 
 
-def _leftover(name: str) -> bool:
-    """A run folder's lock file or temporary twin (``.NAME.lock``, ``.NAME.partial-PID``, ``.NAME.old-PID``)."""
-    return name.startswith(".") and (name.endswith(".lock") or ".partial-" in name or ".old-" in name)
-
-
 def _is_batch_folder(folder: Path, drive_names: Iterable[str] = ()) -> bool:
     """``folder`` is a batch's output: its summary, its merged map, a drive's run folder with its key (a batch
     stopped before the summary), or the run folder of one of ``drive_names`` (a batch stopped between
@@ -308,7 +303,7 @@ def check_batch_folder(folder: str | Path, what: str = "--out", drive_names: Ite
     if not folder.is_dir():
         return
     try:
-        entries = [p.name for p in folder.iterdir() if not _leftover(p.name)]
+        entries = [p.name for p in folder.iterdir() if not is_leftover(p.name)]
         if entries and not _is_batch_folder(folder, drive_names):
             raise ConfigError(f"{what} {folder}: holds other files (such as {sorted(entries)[0]}) and is not a "
                               f"featmap batch output folder (no {SUMMARY_FILE}); give a new or empty folder, or an "

@@ -37,6 +37,12 @@ DERIVED = ("figures", "batch.json")
 stale once the run is redone, so a new run replaces them."""
 
 
+def is_leftover(entry: str) -> bool:
+    """``entry`` (a name in a folder) is a run folder's lock file or temporary twin (``.NAME.lock``,
+    ``.NAME.partial-PID``, ``.NAME.old-PID``): what RunFolder writes beside ``--out``, not a user's file."""
+    return entry.startswith(".") and (entry.endswith(".lock") or ".partial-" in entry or ".old-" in entry)
+
+
 def check_folder_path(out: str | Path, what: str = "--out") -> None:
     """Fail (one line naming ``what``) when ``out`` or a folder above it exists but is a file."""
     blocker = file_in_the_way(out)
