@@ -47,6 +47,8 @@ import glob
 import hashlib
 import json
 import os
+import signal
+import threading
 import time
 import traceback
 import uuid
@@ -990,9 +992,20 @@ adaptive mmap threshold: every array over 128 kB is then mapped and unmapped afr
 time 4.4 s -> 18.6 s). featmap's local workers start without it."""
 
 
+def dask_setup(worker) -> None:
+    """Dask's preload hook, run in each worker process of :func:`local_cluster` as it starts: the worker
+    ignores Ctrl-C. A terminal sends SIGINT to every process in its foreground group, the workers too; each
+    then printed a KeyboardInterrupt traceback of its own under featmap's one-line message, while the batch
+    process closes the cluster, and with it its workers, anyway."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def local_cluster(workers: int | None = None):
-    """A LocalCluster on 127.0.0.1 (no dashboard): ``workers`` processes of one thread (default: the cores),
-    started without Dask's malloc trim setting (:data:`WORKER_ENVIRON_UNSET`).
+    """A LocalCluster on 127.0.0.1 (no dashboard; the scheduler's HTTP endpoints on a free port, not Dask's
+    8787, which a second cluster would find taken): ``workers`` processes of one thread (default: the cores),
+    started without Dask's malloc trim setting (:data:`WORKER_ENVIRON_UNSET`) and ignoring Ctrl-C (the
+    preloads of Dask's configuration run first, then :func:`dask_setup`).
 
     Scripts that call this need the ``if __name__ == "__main__":`` guard (the workers are spawned).
     """
@@ -1000,9 +1013,11 @@ def local_cluster(workers: int | None = None):
     from distributed import LocalCluster
 
     n = workers or os.cpu_count() or 1
+    preload = [*(dask.config.get("distributed.worker.preload", None) or []), __name__]
     with dask.config.set(WORKER_ENVIRON_UNSET), _closed_on_interrupt():
         return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                            dashboard_address=None, silence_logs=40)
+                            dashboard_address=None, silence_logs=40, preload=preload,
+                            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
 
 
 def _default_client():

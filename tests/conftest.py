@@ -2,45 +2,35 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import shutil
 from pathlib import Path
 
 import pytest
 
+LOOPBACK_ONLY = Path(__file__).resolve().parent / "loopback_only"
+# Every Python process the tests start imports loopback_only/sitecustomize.py first and talks to 127.0.0.1 only.
+os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (str(LOOPBACK_ONLY), os.environ.get("PYTHONPATH", "")) if p)
+
+
+def _load_loopback_guard():
+    spec = importlib.util.spec_from_file_location("featmap_tests_loopback_only", LOOPBACK_ONLY / "sitecustomize.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+LOOPBACK_GUARD = _load_loopback_guard()
+
+
 @pytest.fixture(autouse=True)
 def _no_traffic_beyond_this_machine(monkeypatch):
     """Tests talk to 127.0.0.1 only (a local tile server, a local Dask scheduler): a connection or a name lookup
-    for any other host is refused at once, so the code under test takes its offline path (e.g. the overview
-    falls back to the ground truth with a warning) and no test depends on, or sends traffic to, the outside."""
-    import ipaddress
-    import socket
-
-    def local(host) -> bool:
-        if host in (None, "", b"", "localhost", b"localhost"):
-            return True
-        try:
-            return ipaddress.ip_address((host.decode() if isinstance(host, bytes) else str(host)).split("%")[0]).is_loopback
-        except ValueError:
-            return False
-
-    def guard(real):
-        def connect(sock, address, *args):
-            if sock.family in (socket.AF_INET, socket.AF_INET6) and not local(address[0]):
-                raise ConnectionRefusedError(111, f"the tests do not connect to {address[0]}")
-            return real(sock, address, *args)
-        return connect
-
-    real_getaddrinfo = socket.getaddrinfo
-
-    def getaddrinfo(host, *args, **kwargs):
-        if not local(host):
-            raise socket.gaierror(socket.EAI_NONAME, f"the tests do not look up {host}")
-        return real_getaddrinfo(host, *args, **kwargs)
-
-    monkeypatch.setattr(socket.socket, "connect", guard(socket.socket.connect))
-    monkeypatch.setattr(socket.socket, "connect_ex", guard(socket.socket.connect_ex))
-    monkeypatch.setattr(socket, "getaddrinfo", getaddrinfo)
+    for any other host is refused at once (``loopback_only/sitecustomize.py``; the processes the tests start
+    import it themselves), so the code under test takes its offline path and nothing reaches the outside."""
+    for owner, attribute, function in LOOPBACK_GUARD.guarded().values():
+        monkeypatch.setattr(owner, attribute, function)
 
 
 SHARED = Path(os.environ.get("FEATMAP_SHARED", Path(__file__).resolve().parents[1] / ".." / "shared")) / "data"

@@ -361,6 +361,78 @@ def test_local_workers_keep_the_adaptive_malloc_thresholds(dask_client):
     assert os.environ.get("MALLOC_TRIM_THRESHOLD_") is None          # nor is it left in the client's process
 
 
+def _sigint_is_ignored() -> bool:
+    return signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+
+
+def test_local_workers_ignore_ctrl_c_and_keep_the_configured_preloads(dask_client):
+    seen = dask_client.run(_sigint_is_ignored)
+    assert len(seen) == 2 and set(seen.values()) == {True}
+    assert not _sigint_is_ignored()                                   # the client's process still stops on Ctrl-C
+    # The tests' own guard (a preload would be dropped if featmap's replaced the configured ones; here it
+    # comes in by sitecustomize): the workers refuse to look up any other host.
+    refused = dask_client.run(_looks_up_a_reserved_name)
+    assert set(refused.values()) == {"refused: the tests do not look up example.invalid"}
+
+
+def _looks_up_a_reserved_name() -> str:
+    try:
+        socket.getaddrinfo("example.invalid", 80)
+    except OSError as exc:
+        return f"refused: {exc.strerror or exc}"
+    return "looked up"
+
+
+def test_local_cluster_runs_the_configured_worker_preloads_before_its_own(tmp_path, dask_client):
+    """... and a second LocalCluster (the session's ``dask_client`` is one) finds no port of the first taken."""
+    import warnings
+
+    import dask
+
+    from featmap.batch import local_cluster
+
+    marker = tmp_path / "marker_preload.py"
+    marker.write_text("import os\n\ndef dask_setup(worker):\n    os.environ['FEATMAP_TEST_PRELOADED'] = '1'\n")
+    with dask.config.set({"distributed.worker.preload": [str(marker)]}), warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        cluster = local_cluster(1)
+    assert not [w for w in seen if "already in use" in str(w.message)]
+    try:
+        from distributed import Client
+
+        with Client(cluster) as client:
+            seen = client.run(lambda: (os.environ.get("FEATMAP_TEST_PRELOADED"), _sigint_is_ignored()))
+    finally:
+        cluster.close()
+    assert list(seen.values()) == [("1", True)]
+
+
+def test_ctrl_c_in_the_terminal_during_a_batch_prints_one_line_and_leaves_no_process(tiny_worlds, tmp_path):
+    """A terminal's Ctrl-C reaches the batch and its LocalCluster's worker processes (one process group):
+    featmap's one line, exit 130, no worker's KeyboardInterrupt traceback, every worker process gone."""
+    path = write_batch(tmp_path / "b.yaml", tiny_worlds, tmp_path / "sim", tmp_path / "cache")
+    process = subprocess.Popen([sys.executable, "-m", "featmap.cli", "batch", str(path), "--out", str(tmp_path / "out"),
+                                "--workers", "2"], cwd=tmp_path, start_new_session=True, text=True,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # as from a terminal
+    try:
+        line = process.stdout.readline()                             # printed once the workers are up
+        assert line.startswith("Dask scheduler tcp://127.0.0.1:"), line + process.stderr.read()
+        os.killpg(process.pid, signal.SIGINT)
+        out, err = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+    assert process.returncode == 130, err
+    assert err.strip().splitlines() == ["featmap: interrupted; finished files are complete, nothing half-written was kept."]
+    deadline = time.time() + 10
+    while (left := subprocess.run(["ps", "-o", "pid=,args=", "-g", str(process.pid)], capture_output=True,
+                                  text=True).stdout.strip()) and time.time() < deadline:
+        time.sleep(0.2)
+    assert left == ""
+
+
 def test_the_example_batch_names_two_builtin_drives_over_shared_streets():
     from featmap.simulation.worlds import load_world
 
