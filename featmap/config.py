@@ -163,12 +163,6 @@ def _deep_copy(data: Any) -> Any:
     return data
 
 
-def yaml_error_line(exc: Exception) -> str:
-    """``":LINE"`` of a YAML syntax error (1-based), or ``""`` when PyYAML does not know it."""
-    mark = getattr(exc, "problem_mark", None)
-    return f":{mark.line + 1}" if mark is not None else ""
-
-
 def yaml_problem(exc: Exception) -> str:
     """What is wrong in a YAML error, on one line (PyYAML's reader errors span several)."""
     return " ".join(str(getattr(exc, "problem", None) or exc).split())
@@ -199,6 +193,32 @@ _UniqueKeyLoader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(rf"
                                        list("-+0123456789."))
 
 
+class InvalidYamlError(ConfigError):
+    """Text that is not valid YAML or gives a key twice, on one line: ``SOURCE:LINE: not valid YAML (PROBLEM)``.
+
+    ``line`` (1-based, None when PyYAML does not know it) and ``problem`` are kept apart for readers that
+    report in their own error type (a world file's WorldError, a wall list's InputFileError).
+    """
+
+    def __init__(self, source: str, line: int | None, problem: str):
+        super().__init__(f"{source}{'' if line is None else f':{line}'}: not valid YAML ({problem})")
+        self.source, self.line, self.problem = source, line, problem
+
+    def __reduce__(self):                         # pickles (e.g. from a batch worker) with its three arguments
+        return type(self), (self.source, self.line, self.problem)
+
+
+def load_yaml_text(text: str, source: str) -> Any:
+    """The YAML document in ``text`` as config files are read: a key given twice in one mapping is an error
+    ('<<' merge keys still work) and 1e3 / 5e-1 are numbers. An :class:`InvalidYamlError` (a ConfigError)
+    naming ``source`` and the line otherwise. An empty document is None."""
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        raise InvalidYamlError(source, None if mark is None else mark.line + 1, yaml_problem(exc)) from None
+
+
 def read_yaml_mapping(path: str | Path, what: str = "config file") -> dict[str, Any]:
     """Read a YAML file (a ``what``: config, sweep or batch file) that must hold a mapping with no key given
     twice; a one-line ConfigError otherwise."""
@@ -213,10 +233,7 @@ def read_yaml_mapping(path: str | Path, what: str = "config file") -> dict[str, 
         raise ConfigError(f"{path}: not UTF-8 text (byte {exc.start}); save it as UTF-8") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
-    try:
-        data = yaml.load(text, Loader=_UniqueKeyLoader)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}{yaml_error_line(exc)}: not valid YAML ({yaml_problem(exc)})") from None
+    data = load_yaml_text(text, str(path))
     if data is None:
         return {}
     if not isinstance(data, dict):

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from featmap.config import yaml_problem
+from featmap.config import InvalidYamlError, load_yaml_text
 from featmap.errors import InputFileError
 from featmap.evaluation.truth_metrics import lies_on
 
@@ -161,15 +161,13 @@ def _line(raw, path: Path, where: str) -> ListedLine:
 
 def read_wall_lists(path: str | Path) -> WallLists:
     """Read a wall-list YAML file; a one-line InputFileError naming the file and entry when malformed."""
-    import yaml
-
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = load_yaml_text(path.read_text(), str(path))   # strict as a config file: a key given twice is an error
     except FileNotFoundError:
         raise InputFileError(path, "wall list not found") from None
-    except yaml.YAMLError as exc:
-        raise InputFileError(path, f"not valid YAML ({yaml_problem(exc)})") from None
+    except InvalidYamlError as exc:
+        raise InputFileError(path, f"not valid YAML ({exc.problem})", exc.line) from None
     if not isinstance(data, dict) or not isinstance(data.get("scans"), dict):
         raise InputFileError(path, "expected a mapping with 'scans: {scan path: {walls, optional, clutter, max_unlisted}}'")
     scans = {}

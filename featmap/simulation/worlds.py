@@ -43,9 +43,9 @@ from pathlib import Path
 from typing import Annotated, Literal, Optional, Union
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
 
+from featmap.config import InvalidYamlError, load_yaml_text
 from featmap.errors import FeatmapError, WorldError
 
 WORLDS_DIR = Path(__file__).resolve().parents[1] / "resources" / "worlds"
@@ -335,11 +335,9 @@ def _read_world_mapping(path: Path) -> dict:
             raise WorldError(f"{path}: malformed GeoJSON feature ({type(exc).__name__}: {exc}); every feature needs "
                              "a geometry with coordinates") from None
     try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        from featmap.config import yaml_error_line
-
-        raise WorldError(f"{path}{yaml_error_line(exc)}: not valid YAML") from None
+        return load_yaml_text(text, str(path))      # as strict as a config: a key given twice is an error
+    except InvalidYamlError as exc:
+        raise WorldError(str(exc)) from None
 
 
 def _resolve_extends(data, path: Path, seen: tuple[Path, ...] = ()) -> dict:

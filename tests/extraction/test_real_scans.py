@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from featmap.errors import InputFileError
 from featmap.extraction import ExtractionConfig, extract_scan
 from featmap.io.kitti_raw import read_velo_bin
 from featmap.evaluation.wall_lists import read_wall_lists, score_wall_list
@@ -65,3 +66,29 @@ def test_few_segments_on_unlisted_structure(scan):
 def test_the_lists_cover_both_full_scans_and_the_six_crops():
     assert len(LISTS.scans) == 8
     assert sum(len(w.walls) for w in LISTS.scans.values()) >= 40
+
+
+WALL_LIST = """scans:
+  drive/0000000000.bin:
+    walls:
+      - {name: front, p: [0, 5], q: [10, 5]}
+"""
+
+
+def test_a_key_given_twice_in_a_wall_list_is_one_line_naming_the_line(tmp_path):
+    """Read as strictly as a config file: PyYAML alone keeps the last 'q' without a word."""
+    path = tmp_path / "walls.yaml"
+    path.write_text(WALL_LIST.replace("q: [10, 5]}", "q: [10, 5], q: [20, 5]}"))
+    with pytest.raises(InputFileError, match=r"walls.yaml:4: not valid YAML \('q' is given twice\)") as info:
+        read_wall_lists(path)
+    assert "\n" not in str(info.value) and info.value.line == 4
+
+
+def test_exponent_numbers_in_a_wall_list_are_numbers(tmp_path):
+    """1e1 and 5e-1 without a dot are numbers, as in a config file (YAML 1.1 reads them as strings, and
+    'max_unlisted' refused the string)."""
+    path = tmp_path / "walls.yaml"
+    path.write_text(WALL_LIST.replace("q: [10, 5]}", "q: [1e1, 5]}\n    max_unlisted: 1e1") + "tolerance_m: 5e-1\n")
+    lists = read_wall_lists(path)
+    scan = lists.scans["drive/0000000000.bin"]
+    assert (scan.max_unlisted, lists.tolerance_m, list(scan.walls[0].q)) == (10, 0.5, [10.0, 5.0])

@@ -35,6 +35,25 @@ def test_a_non_finite_route_is_one_line(tmp_path):
         load_world(path)
 
 
+def test_a_key_given_twice_in_a_world_file_is_one_line_naming_the_line(tmp_path):
+    """Read as strictly as a config file: PyYAML alone keeps the last 'height' without a word."""
+    path = tmp_path / "w.yaml"
+    path.write_text(BASE + "  - {id: A, kind: building, footprint: [[0, 0], [10, 0], [10, 10]],\n"
+                           "     height: 12, height: 3}\n")
+    with pytest.raises(WorldError, match=r"w.yaml:5: not valid YAML \('height' is given twice\)") as info:
+        load_world(path)
+    assert "\n" not in str(info.value)
+
+
+def test_exponent_numbers_in_a_world_file_are_numbers(tmp_path):
+    """1e3 and 5e-1 without a dot are numbers, as in a config file (YAML 1.1 reads them as strings, and an
+    integer field such as a hedge's seed refused the string)."""
+    path = tmp_path / "w.yaml"
+    path.write_text(BASE + "  - {id: h, kind: hedge, line: [[0, -4], [1e1, -4]], height: 5e-1, seed: 1e3}\n")
+    hedge = load_world(path).of_kind("hedge")[0]
+    assert (hedge.line, hedge.height, hedge.seed) == ([(0.0, -4.0), (10.0, -4.0)], 0.5, 1000)
+
+
 def test_builtin_worlds_load_and_label_vertices():
     assert {"residential", "prescan_case1", "prescan_case2"} <= set(builtin_worlds())
     case1 = load_world("prescan_case1")
