@@ -51,7 +51,7 @@ from featmap.config import apply_overrides, closest_key, leaf_keys, read_yaml_ma
 from featmap.errors import ConfigError, FeatmapError
 from featmap.evaluation import Evaluator, Reference
 from featmap.fusion import FUSION_METHODS, fuse
-from featmap.io.atomic import atomic_write_text
+from featmap.io.atomic import atomic_file_set, atomic_write_text
 from featmap.io.segments_csv import SegmentTable
 from featmap.pipeline.config import FeatmapConfig, config_from_dict, resolve_config_path
 from featmap.pipeline.executor import Executor, SerialExecutor
@@ -453,7 +453,9 @@ def run_sweep_file(spec_path: str | Path, out: str | Path, executor: Executor = 
     """Validate, run (resumably), and write ``sweep.csv``, ``best.yaml`` and the plots into ``out``.
 
     ``out`` then holds this sweep's outputs only: a ``best.yaml`` or plot an earlier sweep into it wrote
-    and this one does not (another grid's) is removed; other files are left alone.
+    and this one does not (another grid's) is removed; other files are left alone. The table, ``best.yaml``
+    and the plots are written as one set (``atomic_file_set``): an error or Ctrl-C while they are drawn
+    leaves the earlier sweep's whole set (the resumable log ``results.jsonl`` is written as the sweep goes).
 
     The base config is the sweep file's ``base``, or ``config_path`` when given, then ``overrides``.
     """
@@ -461,7 +463,7 @@ def run_sweep_file(spec_path: str | Path, out: str | Path, executor: Executor = 
     import io
 
     from featmap import __version__
-    from featmap.plotting.sweep_plots import plot_sweep
+    from featmap.plotting.sweep_plots import PLOT_NAMES, draw_sweep_plots
 
     spec_path = Path(spec_path)
     spec = load_sweep(spec_path)
@@ -491,15 +493,14 @@ def run_sweep_file(spec_path: str | Path, out: str | Path, executor: Executor = 
     writer.writerow(cols)
     for r in rows:
         writer.writerow(["" if r.get(c) is None else r.get(c) for c in cols])
-    atomic_write_text(out / "sweep.csv", buf.getvalue())
     best = best_row(rows, spec.select) if inputs.reference is not None else None
-    if best is not None:
-        overrides_best = [f"{k}={json.dumps(best[k])}" for k in keys if k in best and applies_to(k, best["method"])]
-        cfg = config_from_dict(apply_overrides(base, overrides_best, FeatmapConfig), "best")
-        header = (f"# best of {len(rows)} combinations for {spec.select.goal} {spec.select.metric} "
-                  f"= {best[spec.select.metric]:.4f} (method {best['method']}); use with --config\n")
-        atomic_write_text(out / "best.yaml", header + cfg.to_yaml())
-    elif (out / "best.yaml").is_file():
-        (out / "best.yaml").unlink()              # an earlier grid's best, not this sweep's
-    plot_sweep(rows, keys, out, spec.select.metric if inputs.reference is not None else "count")
+    with atomic_file_set(out, ("sweep.csv", "best.yaml", *PLOT_NAMES)) as stage:
+        atomic_write_text(stage / "sweep.csv", buf.getvalue())
+        if best is not None:      # (no best: an earlier grid's best.yaml is removed with the set)
+            overrides_best = [f"{k}={json.dumps(best[k])}" for k in keys if k in best and applies_to(k, best["method"])]
+            cfg = config_from_dict(apply_overrides(base, overrides_best, FeatmapConfig), "best")
+            header = (f"# best of {len(rows)} combinations for {spec.select.goal} {spec.select.metric} "
+                      f"= {best[spec.select.metric]:.4f} (method {best['method']}); use with --config\n")
+            atomic_write_text(stage / "best.yaml", header + cfg.to_yaml())
+        draw_sweep_plots(rows, keys, stage, spec.select.metric if inputs.reference is not None else "count")
     return rows, best

@@ -150,6 +150,31 @@ def test_a_sweep_of_another_grid_into_the_same_folder_leaves_no_plot_of_the_firs
     assert len(log) == 1 + 4 + 1 and "sweep" in json.loads(log[0])     # one header, both grids' rows
 
 
+def test_a_sweep_interrupted_while_it_writes_its_table_and_plots_leaves_the_earlier_set(tmp_path, case1_run, monkeypatch):
+    """Ctrl-C after the table and best.yaml of a second grid were written, while its plots are drawn: the
+    folder keeps the first sweep's table, best.yaml and plots, byte for byte, and no staging folder."""
+    import featmap.plotting.sweep_plots as sweep_plots
+
+    out = tmp_path / "out"
+    first = _write(tmp_path, f"input: {case1_run / 'segments.csv'}\nmethods: [proposed]\n"
+                             "grid:\n  fusion.proposed.delta_deg: [2, 5]\n  fusion.proposed.gamma: [0.0, 0.5]\n")
+    run_sweep_file(first, out)
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.name != "results.jsonl"}
+    assert {"sweep.csv", "best.yaml", "pareto.png"} <= set(before)
+
+    def interrupted(rows, keys, stage, metric):
+        (stage / "curves.png").write_bytes(b"half-drawn")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep_plots, "draw_sweep_plots", interrupted)
+    second = tmp_path / "second.yaml"
+    second.write_text(f"input: {case1_run / 'segments.csv'}\nmethods: [proposed]\n"
+                      "grid:\n  fusion.proposed.delta_deg: [3]\n")
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep_file(second, out)
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.name != "results.jsonl"} == before
+
+
 def test_pareto_front():
     import numpy as np
 

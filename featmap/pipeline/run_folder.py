@@ -22,7 +22,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from featmap.errors import FeatmapError
-from featmap.io.atomic import file_in_the_way
+from featmap.io.atomic import file_in_the_way, is_staging_folder
 
 
 class RunFolderError(FeatmapError):
@@ -39,8 +39,10 @@ stale once the run is redone, so a new run replaces them."""
 
 def is_leftover(entry: str) -> bool:
     """``entry`` (a name in a folder) is a run folder's lock file or temporary twin (``.NAME.lock``,
-    ``.NAME.partial-PID``, ``.NAME.old-PID``): what RunFolder writes beside ``--out``, not a user's file."""
-    return entry.startswith(".") and (entry.endswith(".lock") or ".partial-" in entry or ".old-" in entry)
+    ``.NAME.partial-PID``, ``.NAME.old-PID``), what RunFolder writes beside ``--out``, or a staging folder of
+    ``atomic_file_set`` (a figures or sweep folder's, left by a killed process): not a user's file."""
+    return entry.startswith(".") and (entry.endswith(".lock") or ".partial-" in entry or ".old-" in entry
+                                      or is_staging_folder(entry))
 
 
 def check_folder_path(out: str | Path, what: str = "--out") -> None:

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from featmap.fusion import fuse
-from featmap.io.atomic import atomic_write_text, remove_unwritten
+from featmap.io.atomic import atomic_file_set, atomic_write_text
 from featmap.io.segments_csv import SegmentTable
 from featmap.plotting.basemap import Tiles
 from featmap.plotting.maps import draw_feature_circles, draw_method, draw_truth, draw_walls_3d, view_box
@@ -320,28 +320,30 @@ def write_local_map_counts(results: dict, centres: np.ndarray, out: Path) -> Pat
 
 
 def make_figures(run: FigureInputs, out: str | Path) -> list[Path]:
-    """Every figure for one run, written into ``out``; returns the paths.
+    """Every figure for one run, written into ``out``; returns their paths in ``out``.
 
     Afterwards ``out`` holds this call's figures only among ``FIGURE_FILES`` (an earlier call's Fig. 6 or
-    Figs. 13-14, say, that this run's methods or reference do not make are removed); other files stay.
+    Figs. 13-14, say, that this run's methods or reference do not make are removed); other files stay. The
+    figures are drawn into a hidden staging folder inside ``out`` and moved in together at the end
+    (``atomic_file_set``): an error or Ctrl-C while drawing leaves ``out`` as it was, with the earlier
+    call's figures whole, never some of each.
     """
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     results = {name: fuse(name, run.segments.segments, run.segments.scan, run.fusion, rms=run.segments.extra.get("rms"))
                for name in run.methods}
     centres = local_map_centres(run, results)
-    paths = fig_feature_circles(run, out)
-    if "proposed" in results:
-        paths.append(fig_cluster_fusion(run, results["proposed"], out))
-        paths.append(fig_corner_optimisation(run, results["proposed"], out))
-    paths.append(fig_global_map(run, results, out))
-    paths += fig_local_maps(run, results, centres, out)
-    paths.append(write_local_map_counts(results, centres, out))
-    with warnings.catch_warnings():
-        warnings.simplefilter("always")
-        paths.append(fig_tile_overlays(run, results, centres, out))
-    p = fig_truth_comparison(run, results, out)
-    if p is not None:
-        paths.append(p)
-    remove_unwritten(out, FIGURE_FILES, paths)
-    return paths
+    with atomic_file_set(out, FIGURE_FILES) as stage:
+        paths = fig_feature_circles(run, stage)
+        if "proposed" in results:
+            paths.append(fig_cluster_fusion(run, results["proposed"], stage))
+            paths.append(fig_corner_optimisation(run, results["proposed"], stage))
+        paths.append(fig_global_map(run, results, stage))
+        paths += fig_local_maps(run, results, centres, stage)
+        paths.append(write_local_map_counts(results, centres, stage))
+        with warnings.catch_warnings():
+            warnings.simplefilter("always")
+            paths.append(fig_tile_overlays(run, results, centres, stage))
+        p = fig_truth_comparison(run, results, stage)
+        if p is not None:
+            paths.append(p)
+    return [out / p.name for p in paths]

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from featmap.io.atomic import remove_unwritten
+from featmap.io.atomic import atomic_file_set
 from featmap.plotting.style import method_color, method_label, new_figure, save_png
 
 PLOT_NAMES = ("heatmap_delta_gamma.png", "curves.png", "pareto.png")
@@ -41,8 +41,19 @@ def plot_sweep(rows: list[dict], keys: list[str], out: Path, metric: str) -> lis
     """Heatmap over delta x gamma, a curve per swept key and the Pareto plot, as PNGs in ``out``.
 
     Afterwards ``out`` holds the plots of these rows only: a plot of ``PLOT_NAMES`` not drawn for them (a
-    previous sweep's, e.g. the heatmap of a grid that swept delta and gamma) is removed.
+    previous sweep's, e.g. the heatmap of a grid that swept delta and gamma) is removed. The plots are drawn
+    into a hidden staging folder inside ``out`` and moved in together at the end (``atomic_file_set``): an
+    error or Ctrl-C while drawing leaves ``out`` with the earlier plots whole. Returns their paths in ``out``.
     """
+    out = Path(out)
+    with atomic_file_set(out, PLOT_NAMES) as stage:
+        paths = draw_sweep_plots(rows, keys, stage, metric)
+    return [out / p.name for p in paths]
+
+
+def draw_sweep_plots(rows: list[dict], keys: list[str], out: Path, metric: str) -> list[Path]:
+    """The plots of ``plot_sweep`` (those of ``PLOT_NAMES`` these rows make), written into ``out`` as they are
+    drawn: a staging folder of ``atomic_file_set``, which removes the earlier ones these rows do not make."""
     paths = []
     proposed = [r for r in rows if r["method"] == "proposed"]
     dkey, gkey = "fusion.proposed.delta_deg", "fusion.proposed.gamma"
@@ -108,7 +119,6 @@ def plot_sweep(rows: list[dict], keys: list[str], out: Path, metric: str) -> lis
         ax.legend()
         save_png(fig, out / "pareto.png")
         paths.append(out / "pareto.png")
-    remove_unwritten(out, PLOT_NAMES, paths)
     return paths
 
 

@@ -155,6 +155,7 @@ def test_an_earlier_batchs_out_is_resumed_into(tmp_path, batch):
     leftovers.mkdir()
     (leftovers / ".tiny.lock").write_text("")
     (leftovers / ".tiny.partial-123").mkdir()
+    (leftovers / ".staging-123-abcd1234.tmp").mkdir()              # a killed `featmap figures --out` into it
     fake_run_folder(done / "tiny")
     (done / "summary.json").write_text("{}")
     (done / "errors.txt").write_text("")

@@ -166,11 +166,9 @@ def test_the_basemap_warning_keeps_the_gist_of_a_long_error():
     assert _short(RuntimeError("word " * 60)).endswith("word ...")
 
 
-def test_figures_again_into_the_same_folder_leave_none_of_the_earlier_call(tmp_path, monkeypatch):
-    """A second ``make_figures`` that makes fewer figures (no proposed method: no Figs. 6-7; no truth: no
-    Figs. 13-14) removes the earlier call's, and only featmap's figure names: a user's files stay."""
-    from dataclasses import replace
-
+def _small_run(monkeypatch, drawn: list):
+    """Three walls seen from six scans, with a ground truth; the figures are drawn, not rendered (fast): each
+    figure file holds ``png <n>``, n the number of ``make_figures`` calls begun (``drawn`` lists the names)."""
     from matplotlib.figure import Figure
 
     import featmap.plotting.figures as figures
@@ -178,15 +176,24 @@ def test_figures_again_into_the_same_folder_leave_none_of_the_earlier_call(tmp_p
     from featmap.io.atomic import atomic_write_bytes
     from featmap.io.segments_csv import SegmentTable
     from featmap.pipeline import load_config
-    from featmap.plotting.figures import FIGURE_FILES, FigureInputs, make_figures
+    from featmap.plotting.figures import FigureInputs
     from featmap.simulation.segments import observe_walls
 
-    def save_png(fig, path):                                   # the figures are drawn, not rendered (fast)
+    calls = []
+    make = figures.make_figures
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return make(*args, **kwargs)
+
+    def save_png(fig, path):
         import matplotlib.pyplot as plt
 
         plt.close(fig)
-        return atomic_write_bytes(path, b"png")
+        drawn.append(path.name)
+        return atomic_write_bytes(path, f"png {len(calls)}".encode())
 
+    monkeypatch.setattr(figures, "make_figures", counted)
     monkeypatch.setattr(figures, "save_png", save_png)
     monkeypatch.setattr(Figure, "tight_layout", lambda self, *args, **kwargs: None)
     walls = np.array([[0, 0, 20, 0], [20, 0, 20, 12], [20, 12, 0, 12]], float)
@@ -194,15 +201,55 @@ def test_figures_again_into_the_same_folder_leave_none_of_the_earlier_call(tmp_p
     truth = GroundTruth(walls, np.zeros(3, int), np.array([["a", "b"], ["b", "c"], ["c", "d"]]),
                         [[(0.0, 20.0)], [(0.0, 12.0)], [(0.0, 20.0)]], np.full(3, 100))
     trajectory = np.column_stack([np.linspace(2, 18, 6), np.full(6, 6.0)])
-    run = FigureInputs(SegmentTable(scan=scan, segments=segs), ["proposed"], load_config(None).fusion,
-                       trajectory, None, truth, Tiles(cache_dir=None))
+    return FigureInputs(SegmentTable(scan=scan, segments=segs), ["proposed"], load_config(None).fusion,
+                        trajectory, None, truth, Tiles(cache_dir=None))
+
+
+def test_figures_again_into_the_same_folder_leave_none_of_the_earlier_call(tmp_path, monkeypatch):
+    """A second ``make_figures`` that makes fewer figures (no proposed method: no Figs. 6-7; no truth: no
+    Figs. 13-14) removes the earlier call's, and only featmap's figure names: a user's files stay."""
+    from dataclasses import replace
+
+    import featmap.plotting.figures as figures
+    from featmap.plotting.figures import FIGURE_FILES
+
+    run = _small_run(monkeypatch, [])
     out = tmp_path / "figures"
     out.mkdir()
     (out / "notes.txt").write_text("mine")
     (out / "fig99_my_own.png").write_bytes(b"x")
-    assert {p.name for p in make_figures(run, out)} == set(FIGURE_FILES)
-    second = {p.name for p in make_figures(replace(run, methods=["density"], truth=None), out)}
+    assert {p.name for p in figures.make_figures(run, out)} == set(FIGURE_FILES)
+    second = {p.name for p in figures.make_figures(replace(run, methods=["density"], truth=None), out)}
     assert {"fig06_cluster_fusion.png", "fig07_corner_optimisation.png", "fig13_14_truth_vs_fused.png"}.isdisjoint(second)
     assert sorted(p.name for p in out.iterdir()) == sorted(second | {"notes.txt", "fig99_my_own.png"})
     assert (out / "notes.txt").read_text() == "mine" and (out / "fig99_my_own.png").read_bytes() == b"x"
     assert (out / "fig10_counts.csv").read_text().splitlines()[0] == "map,density"
+
+
+@pytest.mark.parametrize("error", [RuntimeError("no tiles today"), KeyboardInterrupt()])
+def test_figures_that_fail_half_way_leave_the_earlier_calls_figures_whole(tmp_path, monkeypatch, error):
+    """An error or Ctrl-C while drawing (here in Fig. 11, after Figs. 2-10 were drawn) leaves the folder as the
+    earlier call left it: all of its figures, byte for byte, none of the new call's, and no staging folder."""
+    from dataclasses import replace
+
+    import featmap.plotting.figures as figures
+    from featmap.plotting.figures import FIGURE_FILES
+
+    drawn = []
+    run = _small_run(monkeypatch, drawn)
+    out = tmp_path / "figures"
+    paths = figures.make_figures(run, out)
+    assert sorted(paths) == sorted(out / name for name in FIGURE_FILES)
+    (out / "notes.txt").write_text("mine")
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert before["fig02_feature_circles_one_scan.png"] == b"png 1"
+
+    def fail(*args, **kwargs):
+        raise error
+
+    monkeypatch.setattr(figures, "fig_tile_overlays", fail)
+    drawn.clear()
+    with pytest.raises(type(error)):
+        figures.make_figures(replace(run, methods=["density"]), out)
+    assert "fig10_local_maps_2d.png" in drawn                    # the second call drew figures before it failed
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before

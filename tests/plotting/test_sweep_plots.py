@@ -30,3 +30,29 @@ def test_plot_sweep_with_null_values_and_a_shared_section_key(tmp_path):
     paths = plot_sweep(rows, keys, tmp_path, "f1")
     assert {p.name for p in paths} == {"curves.png", "pareto.png"}
     assert all(p.stat().st_size > 0 for p in paths)
+
+
+def test_plots_that_fail_half_way_leave_the_earlier_plots_whole(tmp_path, monkeypatch):
+    """A sweep stopped while plotting (an error, Ctrl-C) after it drew some plots: the folder keeps the
+    earlier sweep's plots, byte for byte, none of the new ones, and no staging folder."""
+    import pytest
+
+    import featmap.plotting.sweep_plots as sweep_plots
+
+    rows = [{"method": "proposed", "fusion.proposed.delta_deg": d, "fusion.proposed.gamma": g, "count": 10 + d,
+             "f1": 0.5 + 0.1 * g} for d in (1.0, 2.0) for g in (1.0, 2.0)]
+    keys = ["fusion.proposed.delta_deg", "fusion.proposed.gamma"]
+    first = plot_sweep(rows, keys, tmp_path, "f1")
+    assert sorted(p.name for p in first) == ["curves.png", "heatmap_delta_gamma.png", "pareto.png"]
+    assert all(p.parent == tmp_path for p in first)
+    (tmp_path / "notes.txt").write_text("mine")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+
+    def interrupted(points):                                  # the heatmap and the curves are drawn by now
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep_plots, "pareto_front", interrupted)
+    other = [dict(r, count=r["count"] * 3, f1=r["f1"] / 2) for r in rows]
+    with pytest.raises(KeyboardInterrupt):
+        plot_sweep(other, keys, tmp_path, "f1")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
