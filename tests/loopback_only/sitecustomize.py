@@ -23,10 +23,20 @@ def is_loopback(host) -> bool:
         return False
 
 
+def is_address(host) -> bool:
+    """``host`` is a numeric IPv4 or IPv6 address (resolving it sends nothing; connecting is another matter)."""
+    try:
+        ipaddress.ip_address((host.decode() if isinstance(host, bytes) else str(host)).split("%")[0])
+    except ValueError:
+        return False
+    return True
+
+
 def guarded() -> dict[str, tuple[object, str, object]]:
     """The replacements, as ``{name: (owner, attribute, guarded function)}``: ``socket.socket.connect`` and
     ``connect_ex`` refuse (ConnectionRefusedError) an internet address that is not a loopback one, and
-    ``socket.getaddrinfo`` refuses (socket.gaierror) to look up any other name."""
+    ``socket.getaddrinfo`` refuses (socket.gaierror) to look up any other name (numeric addresses pass:
+    nothing is sent to resolve them)."""
 
     def guard(real):
         def connect(sock, address, *args):
@@ -38,7 +48,7 @@ def guarded() -> dict[str, tuple[object, str, object]]:
     real_getaddrinfo = socket.getaddrinfo
 
     def getaddrinfo(host, *args, **kwargs):
-        if not is_loopback(host):
+        if not (is_loopback(host) or is_address(host)):      # a numeric address is no look-up (e.g. 0.0.0.0 to bind)
             raise socket.gaierror(socket.EAI_NONAME, f"the tests do not look up {host}")
         return real_getaddrinfo(host, *args, **kwargs)
 
