@@ -228,14 +228,33 @@ def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig(),
         FusionResult with (M, 4) fused segments (before corner optimisation; the registry applies it).
     """
     segments, scan, valid = validate_input(segments, scan)
+    idx = np.flatnonzero(valid)
+    if len(idx) == 0:
+        return fuse_links(segments, scan, valid, np.zeros(0, np.int64), np.zeros(0, np.int64), config, clean)
+    i, j = linked_pairs(segments[idx], scan[idx], config, progress)
+    return fuse_links(segments, scan, valid, i, j, config, clean)
+
+
+def fuse_links(segments: np.ndarray, scan: np.ndarray, valid: np.ndarray, i: np.ndarray, j: np.ndarray,
+               config: ProposedConfig = ProposedConfig(), clean: np.ndarray | None = None) -> FusionResult:
+    """The method's clusters, support filter and fit, from linked pairs found already.
+
+    Args:
+        segments: (N, 4) world-frame segments, metres; scan: (N,) their scans; valid: (N,) bool, the
+            segments long enough to fuse (``validate_input``).
+        i, j: (K,) linked pairs as indices into the valid segments (``segments[valid]``), with the connected
+            components and first-link scans of all linked pairs (``linked_pairs``, or an
+            :class:`featmap.fusion.online.OnlineFusion`).
+        clean: (N,) True for the clean views (``SupportRule.clean_views``), or None.
+    """
     labels = np.full(len(segments), -1, dtype=np.int64)
     idx = np.flatnonzero(valid)
     seg, sc = segments[idx], scan[idx]
     if len(seg) == 0:
         empty = np.zeros((0, 4))
         return FusionResult(empty, np.zeros(0, np.int64), labels, empty, 0, int((~valid).sum()))
-    i, j = linked_pairs(seg, sc, config, progress)
     groups, sizes = cluster_segments(len(seg), i, j, sc, seg)
+
     def covered() -> np.ndarray:
         # Few views of a wall still make it a wall when they cover enough of one line.
         small = sizes[groups] < config.min_support

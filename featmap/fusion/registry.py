@@ -106,6 +106,16 @@ def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig(),  # ty
         rule = method.support_rule(section)
         clean = rule.clean_views(segments, rms)
         result = method.fuse(segments - shift, scan, section, progress=progress, clean=clean)
+    return finish_fusion(result, segments, scan, origin, config, rule, clean)
+
+
+def finish_fusion(result: FusionResult, segments: np.ndarray, scan, origin: np.ndarray,
+                  config: FusionConfig = FusionConfig(),  # type: ignore[valid-type]
+                  rule: SupportRule = SupportRule(), clean: np.ndarray | None = None) -> FusionResult:
+    """What runs after every method: the shared refinement and corner optimisation, then back from the
+    working frame (``origin`` (2,) subtracted, see :func:`working_origin`) to the frame of ``segments``
+    ((N, 4), the method's input before the shift; ``result`` was fused from ``segments - origin``)."""
+    shift = np.tile(origin, 2)
     result = refine(result, segments - shift, scan, config.refine, rule, clean)
     before = result.segments_before_corners
     after = optimise_corners(before, config.corners)

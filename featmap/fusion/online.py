@@ -1,0 +1,210 @@
+"""The proposed method one scan at a time (online mapping).
+
+:class:`OnlineFusion` keeps the state of the link forest (:mod:`featmap.fusion.link_forest`) between
+scans: a uniform grid of the segments seen so far, grouped per cell by connected component, and the
+union-find of the components. :meth:`OnlineFusion.add_scan` links a new scan's segments to those of
+the earlier scans with the very kernel the offline method runs (scans in increasing order, each segment
+against the groups near it); its cost depends on how many groups of *other* components lie near the new
+segments, not on the size of the map nor on how often its walls were seen before (a wall seen a
+hundred times is one group per cell, met once). :meth:`OnlineFusion.fused` turns everything seen so far
+into the fused map: clusters, support filter, fit, the shared refinement and the corner optimisation.
+That costs about linear time in the map's size, so an online mapper calls it every few scans, not after
+each one.
+
+Why it is the offline map: the link forest's components and first-link scans do not depend on the grid
+(see :mod:`featmap.fusion.link_forest`), and the pairs whose criteria lie within rounding of a threshold
+are decided with numpy as offline. So ``fused()`` equals ``fuse("proposed", segments, scan, config,
+rms=rms)`` of the same segments (scans numbered in the order they were added) bit for bit, whenever both
+work in the same frame: the online fusion fixes its working origin (a whole-kilometre point,
+:func:`featmap.fusion.registry.working_origin`) from the first scan with segments, the offline one from
+all segments, and both are the frame's origin for a map within 500 m of it. Elsewhere the two differ
+by the rounding of that shift (far below a micrometre) and can, rarely, decide a pair that lies exactly
+on a threshold differently. Only ``extras["links_kept"]`` differs always (another spanning forest of the
+same components).
+
+Numpy in, numpy out; world-frame segments (metres).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from featmap.fusion import link_forest as lf
+from featmap.fusion.base import MIN_SEGMENT_LENGTH_M, FusionResult
+from featmap.fusion.proposed import _meets_criteria, evaluate_pairs, fuse_links, support_rule
+from featmap.fusion.registry import FusionConfig, finish_fusion, working_origin
+from featmap.geometry import as_segments, segment_lengths
+
+GRID_OFFSET_CELLS = 2 ** 25
+"""The grid's cell (0, 0) lies this many cells south-west of the first segment (cell coordinates stay
+positive for +-33 million cells, i.e. +-67,000 km at 2 m cells)."""
+
+
+class OnlineFusion:
+    """The proposed method, fed one scan at a time; see the module docstring.
+
+    Args:
+        config: the ``fusion`` section (``proposed``, ``refine`` and ``corners`` are used).
+    """
+
+    def __init__(self, config: FusionConfig = FusionConfig()):  # type: ignore[valid-type]
+        self.config = config
+        self.section = config.proposed
+        self.origin: np.ndarray | None = None      # (2,) working origin, fixed by the first scan with segments
+        self._scans: list[np.ndarray] = []          # per scan: (K, 4) segments as given
+        self._rms: list[np.ndarray | None] = []
+        self._valid: list[np.ndarray] = []
+        self._n = 0                                 # valid segments so far (the kernel's indices 0 .. n-1)
+        self._capacity = 0
+        self._cells: dict[int, int] = {}            # grid key -> cell index
+        self._cell_keys = np.zeros(0, np.int64)
+        self._n_groups = self._n_links = self._n_undecided = 0
+        self._undecided_i = np.empty(1024, np.int64)
+        self._undecided_j = np.empty(1024, np.int64)
+        self.stats = np.zeros(4, np.int64)
+        """(4,) cells visited, groups of other components met, groups tested, pairs evaluated (so far)."""
+
+    # --- what has been seen ----------------------------------------------------------------------------
+
+    @property
+    def n_scans(self) -> int:
+        return len(self._scans)
+
+    @property
+    def n_segments(self) -> int:
+        return sum(len(s) for s in self._scans)
+
+    def segments(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """(segments (N, 4), scan (N,), rms (N,) or None when a scan came without) of every scan so far."""
+        if not self._scans:
+            return np.zeros((0, 4)), np.zeros(0, np.int64), None
+        scan = np.repeat(np.arange(len(self._scans), dtype=np.int64), [len(s) for s in self._scans])
+        rms = None if any(r is None for r in self._rms) else np.concatenate(self._rms)
+        return np.concatenate(self._scans), scan, rms
+
+    # --- one scan in -----------------------------------------------------------------------------------
+
+    def add_scan(self, segments, rms=None) -> int:
+        """Link one scan's segments to those of the scans before it; returns the scan's index.
+
+        Args:
+            segments: (K, 4) world-frame segments ``x1, y1, x2, y2`` (metres); K may be 0.
+            rms: (K,) each segment's fit rms from the extraction (metres), or None (then no segment
+                counts as a clean view in :meth:`fused`, as offline without an rms column).
+        Raises:
+            ValueError: a NaN or infinite coordinate, or ``rms`` of another length.
+        """
+        segments = as_segments(segments).astype(np.float64, copy=True)
+        if not np.isfinite(segments).all():
+            raise ValueError("segments contain NaN or inf")
+        if rms is not None:
+            rms = np.asarray(rms, dtype=float).reshape(-1)
+            if len(rms) != len(segments):
+                raise ValueError(f"rms has {len(rms)} entries for {len(segments)} segments")
+        if self.origin is None and len(segments):
+            self.origin = working_origin(segments)
+        shift = np.tile(self.origin, 2) if self.origin is not None else np.zeros(4)
+        valid = segment_lengths(segments - shift) > MIN_SEGMENT_LENGTH_M
+        self._scans.append(segments)
+        self._rms.append(rms)
+        self._valid.append(valid)
+        new = segments[valid] - shift
+        if len(new):
+            self._link(new)
+        return len(self._scans) - 1
+
+    def _link(self, new: np.ndarray) -> None:
+        start = self._n
+        end = start + len(new)
+        if self._capacity == 0:
+            self._start_grid(new)
+        self._reserve(end)
+        self._seg[start:end] = new
+        self._parent[start:end] = np.arange(start, end)
+        self._comp_size[start:end] = 1
+        centres = 0.5 * (new[:, :2] + new[:, 2:])
+        cell_xy = np.floor((centres - self._grid_origin) / self._cell_size).astype(np.int64)
+        keys = cell_xy[:, 0] * self._ny + cell_xy[:, 1]
+        fresh = [int(k) for k in dict.fromkeys(keys.tolist()) if int(k) not in self._cells]
+        if fresh:
+            for k in fresh:
+                self._cells[k] = len(self._cells)
+            self._cell_keys = np.concatenate([self._cell_keys, np.array(fresh, np.int64)])
+            self._table_keys, self._table_cell, self._mask = lf._build_cell_table(self._cell_keys)
+            self._cell_head = np.concatenate([self._cell_head, np.full(len(fresh), -1, np.int64)])
+        self._cell_of[start:end] = [self._cells[int(k)] for k in keys.tolist()]
+        scan_start = np.array([start, end], np.int64)
+        # the band within which a criterion is left to numpy grows with the coordinates (as offline)
+        self._max_abs = max(self._max_abs, float(np.abs(new).max()))
+        dist_band = 1e-9 + lf.DISTANCE_BAND_REL * self._max_abs
+        (self._n_groups, self._n_links, self._n_undecided,
+         self._undecided_i, self._undecided_j) = lf.link_forest_kernel(
+            self._seg, self._order, scan_start, 0, 1, self._cell_of,
+            self._table_keys, self._table_cell, self._mask, self._ny,
+            float(self._grid_origin[0]), float(self._grid_origin[1]), self._cell_size,
+            float(np.cos(np.deg2rad(self.section.delta_deg))), float(self.section.gamma), float(self.section.eta_m),
+            dist_band, self.section.delta_deg < 90.0, self.section.gamma > 0.0,
+            self._parent, self._comp_size, self._cell_head, self._group_next, self._group_root,
+            self._group_head, self._group_tail, self._group_box, self._seg_next,
+            self._n_groups, self._links_i, self._links_j, self._n_links,
+            self._undecided_i, self._undecided_j, self._n_undecided, self.stats)
+        self._n = end
+
+    def _start_grid(self, first: np.ndarray) -> None:
+        """Fix the grid from the first segments: cells of 4 eta or a quarter of their median length (only
+        the speed depends on it, not the links' components) and positive cell coordinates."""
+        eta = float(self.section.eta_m)
+        self._cell_size = max(4.0 * eta, float(np.median(segment_lengths(first))) / 4.0, 1e-3)
+        centre = 0.5 * (first[0, :2] + first[0, 2:])
+        self._grid_origin = np.floor(centre / self._cell_size) * self._cell_size - GRID_OFFSET_CELLS * self._cell_size
+        self._ny = 2 * GRID_OFFSET_CELLS
+        self._max_abs = 0.0
+        self._cell_head = np.zeros(0, np.int64)
+
+    def _reserve(self, n: int) -> None:
+        """Grow the per-segment arrays (doubling) to hold ``n`` segments."""
+        if n <= self._capacity:
+            return
+        old, cap = self._capacity, max(1024, self._capacity)
+        while cap < n:
+            cap *= 2
+
+        def grown(name, fill, shape=(), dtype=np.int64):
+            out = np.full((cap, *shape), fill, dtype=dtype)
+            if old:
+                out[:old] = getattr(self, name)[:old]
+            setattr(self, name, out)
+
+        grown("_seg", 0.0, (4,), np.float64)
+        grown("_group_box", 0.0, (8,), np.float64)
+        for name in ("_parent", "_comp_size", "_group_next", "_group_root", "_group_head", "_group_tail", "_seg_next",
+                     "_links_i", "_links_j", "_cell_of"):
+            grown(name, -1)
+        self._order = np.arange(cap, dtype=np.int64)
+        self._capacity = cap
+
+    # --- the map so far ------------------------------------------------------------------------------
+
+    def links(self) -> tuple[np.ndarray, np.ndarray]:
+        """(i (K,), j (K,)), ``i < j``: linked pairs of the valid segments so far (indices in the order they
+        were added), with the components and first-link scans of all linked pairs."""
+        if self._capacity == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        i, j = self._links_i[:self._n_links], self._links_j[:self._n_links]
+        if self._n_undecided:
+            ui, uj = self._undecided_i[:self._n_undecided], self._undecided_j[:self._n_undecided]
+            ok = _meets_criteria(evaluate_pairs(self._seg[:self._n], ui, uj), self.section)
+            i, j = np.concatenate([i, ui[ok]]), np.concatenate([j, uj[ok]])
+        return np.minimum(i, j).astype(np.int64), np.maximum(i, j).astype(np.int64)
+
+    def fused(self) -> FusionResult:
+        """The fused map of every scan so far (what ``fuse("proposed", *self.segments()[:2], config,
+        rms=...)`` gives; see the module docstring). Labels index the segments of :meth:`segments`."""
+        segments, scan, rms = self.segments()
+        origin = self.origin if self.origin is not None else np.zeros(2)
+        valid = np.concatenate(self._valid) if self._valid else np.zeros(0, bool)
+        rule = support_rule(self.section)
+        clean = rule.clean_views(segments, rms)
+        i, j = self.links()
+        result = fuse_links(segments - np.tile(origin, 2), scan, valid, i, j, self.section, clean)
+        return finish_fusion(result, segments, scan, origin, self.config, rule, clean)

@@ -1,0 +1,104 @@
+"""OnlineFusion: one scan at a time, the same map as the offline proposed method, bit for bit."""
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+
+from featmap.fusion import FusionConfig, fuse
+from featmap.fusion.online import OnlineFusion
+from featmap.simulation.segments import city_walls, observe_revisits
+from tests.fusion.test_properties import segment_sets
+
+CONFIG = FusionConfig()
+SMALL_SUPPORT = FusionConfig.model_validate({"proposed": {"min_support": 2}})
+
+
+def by_scan(segments, scan, rms=None):
+    """The rows of each scan in turn (scans renumbered 0..S-1 as they come, empty ones kept)."""
+    for s in range(int(scan.max()) + 1 if len(scan) else 0):
+        m = scan == s
+        yield segments[m], None if rms is None else rms[m]
+
+
+def online_map(segments, scan, config, rms=None, upto=None):
+    online = OnlineFusion(config)
+    for k, (seg, r) in enumerate(by_scan(segments, scan, rms)):
+        if upto is not None and k == upto:
+            break
+        online.add_scan(seg, r)
+    return online
+
+
+def assert_same_map(online: OnlineFusion, config, rms_given=True):
+    segments, scan, rms = online.segments()
+    offline = fuse("proposed", segments, scan, config, rms=rms if rms_given else None)
+    result = online.fused()
+    assert np.array_equal(result.segments, offline.segments)
+    assert np.array_equal(result.support, offline.support)
+    assert np.array_equal(result.labels, offline.labels)
+    assert result.clusters_dropped == offline.clusters_dropped
+    return result
+
+
+def revisited_street(passes=5, seed=3, far=(0.0, 0.0)):
+    rng = np.random.default_rng(seed)
+    walls = city_walls(40, rng)
+    segments, scan = observe_revisits(walls, passes, 20, rng)
+    order = np.argsort(scan, kind="stable")
+    segments, scan = segments[order] + np.tile(far, 2), scan[order]
+    rms = rng.uniform(0.01, 0.06, len(segments))
+    return segments, scan, rms
+
+
+def test_a_street_driven_five_times_gives_the_offline_map_after_every_pass():
+    segments, scan, rms = revisited_street()
+    per_pass = (int(scan.max()) + 1) // 5
+    for upto in (1, per_pass, 3 * per_pass, None):          # prefixes: what an online mapper shows on the way
+        online = online_map(segments, scan, CONFIG, rms, upto)
+        result = assert_same_map(online, CONFIG)
+    assert online.n_segments == len(segments) and online.n_scans == int(scan.max()) + 1
+    assert 20 < len(result.segments) < 80                    # 40 walls (some pieces dropped or split)
+
+
+def test_far_from_the_frames_origin_it_is_still_the_offline_map():
+    """UTM-like coordinates (500 km east, 5,400 km north): the working origin of the first scan and of the
+    whole map are the same kilometre here, so both fuse in the same frame."""
+    segments, scan, rms = revisited_street(passes=2, far=(500_000.0, 5_400_000.0))
+    online = online_map(segments, scan, CONFIG, rms)
+    assert online.origin.tolist() == [500_000.0, 5_400_000.0]
+    assert_same_map(online, CONFIG)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=True)
+@given(data=segment_sets())
+def test_any_input_scan_by_scan_gives_the_offline_map(data):
+    """Duplicates, zero-length rows, one scan or thousands (most of them empty): the same map, rms or not."""
+    segments, scan = data
+    order = np.argsort(scan, kind="stable")
+    segments, scan = segments[order], scan[order]
+    rms = np.random.default_rng(len(segments)).uniform(0.0, 0.05, len(segments))
+    assert_same_map(online_map(segments, scan, SMALL_SUPPORT, rms), SMALL_SUPPORT)
+    assert_same_map(online_map(segments, scan, SMALL_SUPPORT), SMALL_SUPPORT, rms_given=False)
+
+
+def test_empty_scans_and_a_scan_of_one_point_long_segments():
+    online = OnlineFusion(CONFIG)
+    assert len(online.fused().segments) == 0                # nothing seen yet
+    online.add_scan(np.zeros((0, 4)))
+    online.add_scan([[1.0, 1.0, 1.0, 1.0]])                 # zero length: kept in the input, never fused
+    wall = np.array([[0.0, 5.0, 10.0, 5.0]])
+    for k in range(5):
+        online.add_scan(wall + [0, 0.01 * k, 0, 0.01 * k])
+    result = assert_same_map(online, CONFIG, rms_given=False)
+    assert len(result.segments) == 1 and result.labels[0] == -1 and result.support.tolist() == [5]
+    np.testing.assert_allclose(np.sort(result.segments[0, [0, 2]]), [0.0, 10.0], atol=1e-9)
+    np.testing.assert_allclose(result.segments[0, [1, 3]], 5.02, atol=1e-9)
+
+
+def test_bad_input_is_refused_before_anything_is_kept():
+    online = OnlineFusion(CONFIG)
+    with pytest.raises(ValueError, match="NaN or inf"):
+        online.add_scan([[0.0, 0.0, np.nan, 1.0]])
+    with pytest.raises(ValueError, match="rms has 2 entries for 1 segments"):
+        online.add_scan([[0.0, 0.0, 1.0, 1.0]], rms=[0.01, 0.02])
+    assert online.n_scans == 0 and online.n_segments == 0
