@@ -188,6 +188,7 @@ def run(
     workers: int = WorkersOpt,
     cache_dir: Path = CacheOpt,
     skip_bad_scans: bool = typer.Option(False, "--skip-bad-scans", help="Skip unreadable scans instead of failing."),
+    online: Optional[int] = typer.Option(None, "--online", min=1, help="Map online: each scan extracted and fused as it comes (proposed method, the source's poses, no cache), the map made every N scans; online.csv has each scan's times."),
 ):
     """Turn a scan source into fused wall maps (the embedded simulated drive when no source is given)."""
     from featmap.datasets import DATASETS, open_source
@@ -196,15 +197,20 @@ def run(
 
     spec = source_spec(drive, data_dir, world, dataset, source, carmen, frames, skip_bad_scans)
     preset = DATASETS[spec.kind].preset if spec.kind in DATASETS and config is None else None
-    cfg = load_config(config or preset, set_ or [])
+    reporter = _reporter()
+    overrides = list(set_ or [])
+    if online is not None:
+        method = "proposed" if method == "all" else method      # the one method that fuses a scan at a time
+        overrides.append("refinement.method=none")
+        reporter.info("--online: the source's poses are used as they come (pose refinement needs the whole drive)")
+    cfg = load_config(config or preset, overrides)
     methods = resolve_methods(method)
     store = SegmentStore(cache_dir)
-    reporter = _reporter()
     if preset is not None:
         reporter.info(f"{spec.kind} source: using the {preset} preset (configs/{preset}.yaml); --config overrides it")
     scan_source = open_source(spec, reporter)
     with local_executor(workers) as executor:
-        pipeline = MappingPipeline(cfg, methods, store, executor, reporter, skip_bad_scans)
+        pipeline = MappingPipeline(cfg, methods, store, executor, reporter, skip_bad_scans, online_every=online)
         pipeline.run(scan_source, out or Path("runs") / scan_source.name)
 
 

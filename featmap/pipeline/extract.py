@@ -140,11 +140,11 @@ def extract_source(source: ScanSource, config: ExtractionConfig, store: SegmentS
     poses = source.poses()
     position = {f: i for i, f in enumerate(source.frames)}
     out.poses = poses[[position[f] for f in out.frames]] if out.frames else np.zeros((0, 4, 4))
-    _check_poses(source, out.frames, out.poses)
+    check_poses(source, out.frames, out.poses)
     return out
 
 
-def _check_poses(source: ScanSource, frames: list[int], poses: np.ndarray) -> None:
+def check_poses(source: ScanSource, frames: list[int], poses: np.ndarray) -> None:
     """A one-line DatasetError for poses (F, 4, 4) that are not finite or span more than any map of the Earth."""
     if not len(frames):
         return

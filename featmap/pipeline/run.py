@@ -13,6 +13,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from featmap import __version__
 from featmap.datasets.base import ScanSource
 from featmap.evaluation import EVALUATORS, EvaluationContext, Evaluator, Reference
@@ -24,6 +26,7 @@ from featmap.pipeline.config import FeatmapConfig
 from featmap.pipeline.executor import Executor, SerialExecutor
 from featmap.pipeline.extract import Extraction, extract_source
 from featmap.pipeline.fuse import MethodRun, fuse_methods, warm_up
+from featmap.pipeline.online import check_online, map_online, report_online
 from featmap.pipeline.refine import RefinementRun, refine_extraction
 from featmap.pipeline.run_folder import RunFolder
 from featmap.pipeline.segment_store import SegmentStore
@@ -78,11 +81,17 @@ class MappingPipeline:
         reporter: progress and summaries.
         skip_bad_scans: leave unreadable scans out (listed in metrics.json) instead of failing.
         outputs: the output plug-ins to run.
+        online_every: map online (:mod:`featmap.pipeline.online`): scans extracted and fused one at a time, the
+            map made every this many scans, the source's poses as they are; None = the whole drive at once.
     """
 
     def __init__(self, config: FeatmapConfig, methods: list[str], store: SegmentStore,
                  executor: Executor = SerialExecutor(), reporter: Reporter = NullReporter(),
-                 skip_bad_scans: bool = False, outputs: tuple[Output, ...] = OUTPUTS):
+                 skip_bad_scans: bool = False, outputs: tuple[Output, ...] = OUTPUTS,
+                 online_every: int | None = None):
+        if online_every is not None:
+            check_online(config, methods, online_every)
+        self.online_every = online_every
         self.config = config
         self.methods = methods
         self.store = store
@@ -99,14 +108,23 @@ class MappingPipeline:
         t0 = time.perf_counter()
         inputs = [Path(source.location)] + [Path(p) for p in (self.config.evaluation.footprints,) if p]
         with RunFolder(out, inputs=inputs) as folder:
-            extraction = self.extract(source)
+            online = None
+            if self.online_every is not None:
+                import_seconds = warm_up(self.methods)          # not charged to the first scan
+                online = map_online(source, self.config, self.online_every, self.reporter, self.skip_bad_scans)
+                extraction = online.extraction
+            else:
+                extraction = self.extract(source)
             for message in extraction.discarded:
                 self.reporter.warning(f"discarded a corrupt cache entry and extracted again: {message}")
             refinement = refine_extraction(extraction, self.config.refinement)
             poses = refinement.poses
             table = extraction.world_table(poses)
-            import_seconds = warm_up(self.methods)
-            runs = fuse_methods(table, self.methods, self.config.fusion, self.reporter)
+            if online is None:
+                import_seconds = warm_up(self.methods)
+                runs = fuse_methods(table, self.methods, self.config.fusion, self.reporter)
+            else:       # the fusion's cost: every scan's linking and the last map
+                runs = [MethodRun("proposed", online.result, float(online.link_s.sum() + np.nansum(online.fused_s[-1:])))]
             t_eval = time.perf_counter()
             context = EvaluationContext(source.location, extraction.frames, source.geo_origin, self.config.evaluation,
                                         extraction.world_points(poses), table.segments, self.executor.workers)
@@ -133,7 +151,8 @@ class MappingPipeline:
                            "refinement": round(refinement.seconds, 3),
                            "fusion_library_loading": round(import_seconds, 3),
                            **{f"fusion_{r.name}": round(r.seconds, 4) for r in runs},
-                           "evaluation": round(eval_seconds, 3)},
+                           "evaluation": round(eval_seconds, 3),
+                           **({} if online is None else {"online_every": online.every, **online.timings()})},
                 methods={r.name: MethodRecord(count=len(r.result), clusters_dropped=r.result.clusters_dropped,
                                               seconds=round(r.seconds, 4), scores=scores[r.name]) for r in runs},
                 refinement=refinement_record(refinement),
@@ -148,12 +167,17 @@ class MappingPipeline:
             t_write = time.perf_counter()
             files = write_outputs(products, folder.tmp, self.outputs)
             atomic_write_text(folder.tmp / "config.yaml", products.config_yaml)
+            if online is not None:
+                atomic_write_text(folder.tmp / "online.csv", online.csv_text())
+                files.append("online.csv")
             metrics.timings_s["writing"] = round(time.perf_counter() - t_write, 3)
             metrics.timings_s["total"] = round(time.perf_counter() - t0, 3)
             write_run_metrics(folder.tmp / "metrics.json", metrics)
             files += ["config.yaml", "metrics.json"]
             folder.commit()
         result = RunResult(Path(out), metrics, products, files)
+        if online is not None:
+            report_online(online, self.reporter)
         report_run(result, self.reporter)
         return result
 
