@@ -1,0 +1,162 @@
+"""Online mapping: what one more scan costs, and whether it grows as the map grows or its walls are seen again.
+
+    .venv/bin/python benchmarks/bench_online.py                 # both tables (about 5 minutes)
+    .venv/bin/python benchmarks/bench_online.py --docs          # and write them into docs/online.md
+    .venv/bin/python benchmarks/bench_online.py --parts revisits --revisits 1 5 20 50 100
+
+Parts:
+- ``revisits``: a street grid of 100 walls (featmap.simulation.segments.city_walls) driven K times
+  (observe_revisits: per pass every wall is seen in 20 consecutive scans, about 4 walls per scan, 3 cm
+  endpoint noise, a per-pass localisation error of 5 cm / 0.1 deg, 5 % clutter), fed to
+  :class:`featmap.fusion.online.OnlineFusion` one scan at a time. Per-scan linking time over the scans
+  of the last pass (median and 99th percentile, milliseconds); the time to make the map of everything
+  seen (``fused()``) at the end; and, for comparison, fusing the same segments offline from scratch
+  (``fuse("proposed")``), what re-making the map after a scan would cost without the online state.
+  Each figure is the median of ``--repeats`` feeds (fresh state each time, compiled code loaded first).
+- ``drive``: ``featmap run --online 25`` on the default simulated drive (plots off), ``--repeats``
+  whole processes: per-scan extraction and linking (medians over the scans, from metrics.json; then the
+  median over the processes), the map's time, end-to-end scans per second, and whether its map is byte
+  for byte the offline one (``featmap run --method proposed --set refinement.method=none``).
+
+A shared 2-core machine: times are noisy; the medians are what to quote.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import date
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+N_WALLS = 100
+SCANS_PER_WALL = 20
+
+
+def feed(passes: int, seed: int = 0) -> dict:
+    """One street driven ``passes`` times, fed scan by scan; times in seconds."""
+    from featmap.fusion.online import OnlineFusion
+    from featmap.fusion.registry import FusionConfig, fuse
+    from featmap.simulation.segments import city_walls, observe_revisits
+
+    rng = np.random.default_rng(seed)
+    segments, scan = observe_revisits(city_walls(N_WALLS, rng), passes, SCANS_PER_WALL, rng, clutter_fraction=0.05)
+    order = np.argsort(scan, kind="stable")
+    segments, scan = segments[order], scan[order]
+    n_scans = int(scan.max()) + 1
+    bounds = np.searchsorted(scan, np.arange(n_scans + 1))
+    online = OnlineFusion(FusionConfig())
+    link = np.empty(n_scans)
+    for s in range(n_scans):
+        t0 = time.perf_counter()
+        online.add_scan(segments[bounds[s]:bounds[s + 1]])
+        link[s] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    result = online.fused()
+    map_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    offline = fuse("proposed", segments, scan, FusionConfig())
+    offline_s = time.perf_counter() - t0
+    last = link[-(n_scans // passes):]
+    return {"segments": len(segments), "scans": n_scans, "features": len(result),
+            "same": bool(np.array_equal(result.segments, offline.segments)),
+            "link_median_ms": 1e3 * float(np.median(last)), "link_p99_ms": 1e3 * float(np.quantile(last, 0.99)),
+            "map_s": map_s, "offline_s": offline_s}
+
+
+def part_revisits(revisits: list[int], repeats: int) -> tuple[list[str], list[list[str]]]:
+    from featmap.fusion.registry import prepare_method
+
+    prepare_method("proposed")
+    feed(1, seed=99)                                    # compiled code loaded, caches warm
+    header = ["passes", "segments", "scans", "features", "link ms per scan (median / p99, last pass)",
+              "map of all s", "offline from scratch s", "same map"]
+    rows = []
+    for k in revisits:
+        runs = [feed(k) for _ in range(repeats)]
+        med = {key: statistics.median(r[key] for r in runs) for key in ("link_median_ms", "link_p99_ms", "map_s", "offline_s")}
+        r0 = runs[0]
+        rows.append([str(k), f"{r0['segments']:,}", f"{r0['scans']:,}", str(r0["features"]),
+                     f"{med['link_median_ms']:.2f} / {med['link_p99_ms']:.2f}", f"{med['map_s']:.2f}",
+                     f"{med['offline_s']:.2f}", "yes" if all(r["same"] for r in runs) else "NO"])
+        print(" | ".join(rows[-1]), flush=True)
+    return header, rows
+
+
+def part_drive(repeats: int) -> tuple[list[str], list[list[str]]]:
+    featmap = [sys.executable, "-m", "featmap.cli"]
+    quiet = ["--set", "output.plots=false", "--set", "output.html=false", "--set", "output.kml=false"]
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        subprocess.run(featmap + ["run", "--method", "proposed", "--set", "refinement.method=none", *quiet,
+                                  "--out", str(tmp / "offline")], check=True, cwd=ROOT, capture_output=True)
+        stats = []
+        for k in range(repeats):
+            out = tmp / f"online{k}"
+            t0 = time.perf_counter()
+            subprocess.run(featmap + ["run", "--online", "25", *quiet, "--out", str(out)], check=True, cwd=ROOT,
+                           capture_output=True)
+            wall = time.perf_counter() - t0
+            metrics = json.loads((out / "metrics.json").read_text())
+            t = metrics["timings_s"]
+            stats.append({"scans": metrics["scans"]["processed"], "extract": t["online_extraction_per_scan_median"],
+                          "link": t["online_link_per_scan_median"], "link_max": t["online_link_per_scan_max"],
+                          "map": t["online_map_median"], "map_max": t["online_map_max"], "total": t["total"], "wall": wall,
+                          "same": (out / "fused_proposed.csv").read_bytes() == (tmp / "offline" / "fused_proposed.csv").read_bytes(),
+                          "features": metrics["methods"]["proposed"]["count"]})
+            print(stats[-1], flush=True)
+    med = {key: statistics.median(s[key] for s in stats) for key in stats[0] if key not in ("same",)}
+    header = ["drive", "scans", "extraction ms per scan", "linking ms per scan (median / max)",
+              "map every 25 scans ms (median / max)", "scans/s (run total; process)", "features", "same map as offline"]
+    rows = [["residential (default)", str(int(med["scans"])), f"{1e3 * med['extract']:.1f}",
+             f"{1e3 * med['link']:.2f} / {1e3 * med['link_max']:.1f}", f"{1e3 * med['map']:.0f} / {1e3 * med['map_max']:.0f}",
+             f"{med['scans'] / med['total']:.1f}; {med['scans'] / med['wall']:.1f}", str(int(med["features"])),
+             "yes" if all(s["same"] for s in stats) else "NO"]]
+    return header, rows
+
+
+def markdown(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--parts", nargs="+", default=["revisits", "drive"], choices=["revisits", "drive"])
+    parser.add_argument("--revisits", type=int, nargs="+", default=[1, 5, 20, 50])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--docs", action="store_true", help="write the tables into docs/online.md")
+    args = parser.parse_args()
+    stamp = f"{platform.machine()}, {date.today().isoformat()}, load {os.getloadavg()[0]:.1f} at the start"
+    command = "`.venv/bin/python benchmarks/bench_online.py" + (" " + " ".join(sys.argv[1:]) if sys.argv[1:] else "") + "`"
+    tables = {}
+    if "revisits" in args.parts:
+        header, rows = part_revisits(args.revisits, args.repeats)
+        tables["online_revisits"] = (f"{command} ({stamp}); a street of {N_WALLS} walls driven K times, medians of "
+                                     f"{args.repeats} feeds:\n\n" + markdown(header, rows))
+    if "drive" in args.parts:
+        header, rows = part_drive(args.repeats)
+        tables["online_drive"] = (f"{command} ({stamp}); `featmap run --online 25`, medians of {args.repeats} "
+                                  "processes:\n\n" + markdown(header, rows))
+    for body in tables.values():
+        print("\n" + body)
+    if args.docs:
+        sys.path.insert(0, str(ROOT / "scripts"))
+        from doc_blocks import replace_block
+
+        for name, body in tables.items():
+            replace_block(ROOT / "docs" / "online.md", name, body)
+        print("wrote", ", ".join(tables), "into docs/online.md")
+
+
+if __name__ == "__main__":
+    main()
