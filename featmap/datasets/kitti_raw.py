@@ -136,14 +136,18 @@ class KittiRawDataset(FrameSource):
             raise DatasetError(f"{self.drive_dir}: {len(scans)} scans in velodyne_points/data but {len(packets)} "
                                "OXTS packets in oxts/data; the drive is incomplete (re-download or unzip again)")
         for k, (s, o) in enumerate(zip(scans, packets)):
-            if int(s.stem) != k or int(o.stem) != k:
-                raise DatasetError(f"{s if int(s.stem) != k else o}: expected frame {k:010d} (files must be numbered 0..N-1)")
+            for path in (s, o):
+                if not (path.stem.isascii() and path.stem.isdigit() and int(path.stem) == k):
+                    raise DatasetError(f"{path}: expected frame {k:010d} (files must be numbered 0..N-1)")
         stamps = self.drive_dir / "oxts" / "timestamps.txt"
         if not stamps.is_file():
             raise DatasetError(f"{stamps}: timestamps file missing")
         n_stamps = len(read_timestamps(stamps))
         if n_stamps != len(packets):
             raise DatasetError(f"{stamps}: {n_stamps} timestamps for {len(packets)} OXTS packets")
+        velo_stamps = self.drive_dir / "velodyne_points" / "timestamps.txt"
+        if velo_stamps.exists() and (n_velo := len(read_timestamps(velo_stamps))) != len(scans):
+            raise DatasetError(f"{velo_stamps}: {n_velo} timestamps for {len(scans)} scans")
         bad_scans, bad_oxts, poor = {}, {}, []
         for k, s in enumerate(scans):
             size = s.stat().st_size

@@ -46,6 +46,8 @@ from featmap.geometry import MAX_COORDINATE_M
 
 NO_RETURN_MARGIN_M = 0.1
 """Readings within this of a FLASER log's maximum range are no-returns (51.05 and 51.1 m in fhw)."""
+MAX_RANGE_M = 10_000.0
+"""No 2D laser return lies farther than this (metres): a longer reading that is not a no-return is a corrupt record."""
 
 _MESSAGE_TYPE = re.compile(r"[A-Z][A-Z0-9_]*\Z")
 _FLASER = "FLASER"
@@ -221,6 +223,15 @@ def _count(path, lineno: int, token: str, what: str) -> int:
     return value
 
 
+def _check_not_too_many(path, lineno: int, tokens: list[str], need: int, n: int, what: str) -> None:
+    """A record may end with ``host logger_timestamp`` after its ``need`` tokens, nothing more: more values
+    mean its beam count is wrong (the ranges would be read as poses and timestamps)."""
+    if len(tokens) > need + 2:
+        raise InputFileError(path, f"{what} declares {n} beams but has {len(tokens) - 1} values after the type "
+                                   f"(expected {need - 1}, or {need + 1} with host and logger timestamp): "
+                                   "is its beam count wrong?", lineno)
+
+
 def _parse_flaser(path, lineno: int, tokens: list[str]) -> dict:
     if len(tokens) < 2:
         raise InputFileError(path, "FLASER without a beam count", lineno)
@@ -229,6 +240,7 @@ def _parse_flaser(path, lineno: int, tokens: list[str]) -> dict:
     if len(tokens) < need:
         raise InputFileError(path, f"FLASER with {n} beams needs at least {need - 1} values after the type, "
                                    f"got {len(tokens) - 1}", lineno)
+    _check_not_too_many(path, lineno, tokens, need, n, "FLASER")
     values = _numbers(path, lineno, tokens[2:need], "FLASER")
     logger = _optional_float(tokens, need + 1)
     return dict(ranges=values[:n], angles=carmen_beam_angles(n), max_range=None, pose=values[n:n + 3],
@@ -255,6 +267,7 @@ def _parse_robotlaser(path, lineno: int, tokens: list[str]) -> dict:
     if m < 0 or len(tokens) < need:
         raise InputFileError(path, f"ROBOTLASER1 with {n} beams and {m} remissions has too few values "
                                    f"({len(tokens) - 1})", lineno)
+    _check_not_too_many(path, lineno, tokens, need, n, "ROBOTLASER1")
     tail = _numbers(path, lineno, tokens[start:need], "ROBOTLASER1")
     angles = header[1] + header[3] * np.arange(n)
     return dict(ranges=ranges, angles=angles, max_range=float(header[4]), pose=tail[0:3], odometry=tail[3:6],
@@ -289,7 +302,8 @@ def read_carmen(path: str | Path, max_range_m: float | None = None) -> CarmenLog
             use their own max-range field.
     Raises:
         InputFileError: one line naming the file and line: truncated or corrupt compressed data, a
-            laser or ODOM record with too few or non-numeric values, NaN or infinite values, a line
+            laser or ODOM record with too few or non-numeric values, a laser record with more values than
+            its beam count allows, NaN or infinite values, a return farther than ``MAX_RANGE_M``, a line
             that is not a CARMEN message, or a log without any laser record.
     """
     path = Path(path)
@@ -360,6 +374,11 @@ def _assemble(path: Path, scans: list[dict], odom: list[np.ndarray], odom_lines:
     pose, odometry = stack("pose").reshape(-1, 3), stack("odometry").reshape(-1, 3)
     line, message = np.array([s["line"] for s in scans], dtype=np.int64), np.array([s["message"] for s in scans])
     odom_line = np.array(odom_lines, dtype=np.int64)
+    far = np.flatnonzero((valid & (ranges > MAX_RANGE_M)).any(axis=1))
+    if len(far):
+        k = int(far[0])
+        raise InputFileError(path, f"{message[k]}: a range of {ranges[k][valid[k]].max():g} m is farther than any "
+                                   f"laser reaches ({MAX_RANGE_M:g} m): a corrupt record?", int(line[k]))
     _check_positions(path, np.vstack([np.hstack([pose[:, :2], odometry[:, :2]]), np.tile(odom_arr[:, :2], 2)]),
                      np.r_[line, odom_line], np.r_[message, np.full(len(odom_line), "ODOM")])
     return CarmenLog(

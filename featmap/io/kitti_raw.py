@@ -104,6 +104,10 @@ def read_oxts_packet(path: str | Path) -> dict[str, float]:
     if not (-90.0 < lat < 90.0 and -180.0 <= lon <= 180.0):
         raise DatasetError(f"{path}: OXTS latitude {lat:g} / longitude {lon:g} out of range "
                            "(-90 < lat < 90, -180 <= lon <= 180 degrees)")
+    roll, pitch, yaw = values[3:6]
+    if max(abs(roll), abs(pitch), abs(yaw)) > 2 * np.pi:
+        raise DatasetError(f"{path}: OXTS roll {roll:g} / pitch {pitch:g} / yaw {yaw:g} beyond a full turn "
+                           "(radians, -pi..pi)")
     return dict(zip(OXTS_FIELDS, values))
 
 
@@ -128,6 +132,8 @@ def read_timestamps(path: str | Path) -> np.ndarray:
     for n, line in enumerate(lines, start=1):
         try:
             date, frac = line.rsplit(".", 1)
+            if not (frac.isascii() and frac.isdigit()):     # float() would take "1e5", "1_5" or other digits
+                raise ValueError(frac)
             base = dt.datetime.strptime(date, "%Y-%m-%d %H:%M:%S")
             stamps.append(base.timestamp() + float("0." + frac))
         except ValueError:

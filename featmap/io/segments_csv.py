@@ -213,5 +213,6 @@ def read_fused_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     table = _read_numeric_csv(path, ("x1", "y1", "x2", "y2"), TEXT_COLUMNS, integer_columns=("support",))
     col = {h: table.data[:, k] for k, h in enumerate(table.header)}
     segments = np.stack([col[c] for c in ("x1", "y1", "x2", "y2")], axis=1)
+    _check_extent(path, segments)
     support = table.integers.get("support", np.ones(len(segments), np.int64))
     return segments, support
