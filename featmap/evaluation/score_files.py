@@ -4,9 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from featmap.errors import FeatmapError, InputFileError
 from featmap.evaluation.references import load_simulator_truth, simulation_frame, truth_from_footprints
-from featmap.evaluation.truth_metrics import truth_metrics
+from featmap.evaluation.truth_metrics import MAX_SCORED_LENGTH_M, STEP_M, truth_metrics
 from featmap.geo import GeoFrame
 from featmap.io.sim_truth import is_truth_folder
 
@@ -55,9 +57,19 @@ def evaluate_file(fused: str | Path, truth: str | Path, origin: str | None = Non
         segments, _ = read_fused_csv(fused)
         if frame is None and truth.is_file():
             raise FeatmapError(f"{fused}: a CSV is in a local frame; give --origin LAT,LON or keep it next to its metrics.json")
+    _check_scored_length(fused, segments, "segments", "is it one drive's map?")
     gt = (load_simulator_truth(truth, frame, _frames_of_run(fused, truth)) if truth.is_dir()
           else truth_from_footprints(truth, frame))
+    _check_scored_length(truth, gt.walls, "walls", "crop it to the drive's area")
     return truth_metrics(segments, gt)
+
+
+def _check_scored_length(path: Path, segments: np.ndarray, what: str, advice: str) -> None:
+    """A one-line InputFileError when (K, 4) ``segments`` are longer in total than one scoring holds in memory."""
+    total = float(np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1]).sum())
+    if total > MAX_SCORED_LENGTH_M:
+        raise InputFileError(path, f"its {what} are {total / 1e3:,.0f} km long in total, more than one scoring holds "
+                                   f"({MAX_SCORED_LENGTH_M / 1e3:,.0f} km at {100 * STEP_M:.0f} cm samples): {advice}")
 
 
 def _frames_of_run(fused: Path, truth: Path) -> list[int] | None:

@@ -24,6 +24,9 @@ MIN_OBSERVED_M = 2.0        # ... and at least this much of its length observed
 CORNER_REACH_M = 1.0        # a wall is "observed up to" a corner when its observed part ends this close to it
 CORNER_CAP_CM = 200.0
 COVER_M = 1.0               # a fused feature "covers" a wall when at least this much of the wall lies on it
+MAX_SCORED_LENGTH_M = 1_000_000.0
+"""Walls or segments longer than this in total (1,000 km: ten million samples of STEP_M, ~0.3 GB) are more
+than one scoring holds in memory; evaluate refuses them with the file's name instead of running out of memory."""
 
 
 @dataclass(frozen=True)

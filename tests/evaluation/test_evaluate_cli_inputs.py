@@ -79,3 +79,19 @@ def test_evaluate_rejects_footprints_with_list_properties(tmp_path, footprints):
         {"type": "Feature", "properties": {}, "geometry": {"type": "LineString", "coordinates": _positions([(0, 0), (30, 0)])}}])
     line = _error_line(_cli("evaluate", one_wall, "--truth", footprints))
     assert "fp.geojson: feature 0: 'properties' must be an object or null" in line
+
+
+def test_evaluate_refuses_more_walls_or_segments_than_one_scoring_holds(tmp_path, footprints):
+    """A footprint the size of a continent (or a map line 1,733 km long) is a one-line error naming the file;
+    it was killed for lack of memory (every wall is sampled every 10 cm)."""
+    continent = [[-10.0, 35.0], [30.0, 35.0], [30.0, 60.0], [-10.0, 60.0], [-10.0, 35.0]]
+    huge = _collection(tmp_path / "huge.geojson", [{"type": "Feature", "properties": {},
+                                                    "geometry": {"type": "Polygon", "coordinates": [continent]}}])
+    one_wall = _collection(tmp_path / "map.geojson", [
+        {"type": "Feature", "properties": {}, "geometry": {"type": "LineString", "coordinates": _positions([(0, 0), (30, 0)])}}])
+    line = _error_line(_cli("evaluate", one_wall, "--truth", huge))
+    assert "huge.geojson: its walls are" in line and "crop it to the drive's area" in line
+    long_map = _collection(tmp_path / "long.geojson", [
+        {"type": "Feature", "properties": {}, "geometry": {"type": "LineString", "coordinates": [[8.0, 49.0], [8.0, 31.0]]}}])
+    line = _error_line(_cli("evaluate", long_map, "--truth", footprints))
+    assert "long.geojson: its segments are 1,733 km long in total" in line and "one drive's map?" in line
