@@ -1,6 +1,6 @@
 """Online mapping: what one more scan costs, and whether it grows as the map grows or its walls are seen again.
 
-    .venv/bin/python benchmarks/bench_online.py                 # both tables (about 5 minutes)
+    .venv/bin/python benchmarks/bench_online.py                 # all three tables (about 6 minutes)
     .venv/bin/python benchmarks/bench_online.py --docs          # and write them into docs/online.md
     .venv/bin/python benchmarks/bench_online.py --parts revisits --revisits 1 5 20 50 100
 
@@ -13,6 +13,9 @@ Parts:
   seen (``fused()``) at the end; and, for comparison, fusing the same segments offline from scratch
   (``fuse("proposed")``), what re-making the map after a scan would cost without the online state.
   Each figure is the median of ``--repeats`` feeds (fresh state each time, compiled code loaded first).
+- ``noise``: the default drive simulated with 0.10 m / 0.2 deg pose noise (``scripts/reproduce_paper.py``'s
+  ``residential_pose_noise``), mapped online and offline without and with pose refinement: what mapping
+  online without pose correction costs in accuracy.
 - ``drive``: ``featmap run --online 25`` on the default simulated drive (plots off), ``--repeats``
   whole processes: per-scan extraction and linking (medians over the scans, from metrics.json; then the
   median over the processes), the map's time, end-to-end scans per second, and whether its map is byte
@@ -124,6 +127,33 @@ def part_drive(repeats: int) -> tuple[list[str], list[list[str]]]:
     return header, rows
 
 
+def part_noise() -> tuple[list[str], list[list[str]]]:
+    """What mapping online costs when the poses are noisy: the drive of ``scripts/reproduce_paper.py`` with
+    0.10 m / 0.2 deg pose noise, online (no pose refinement) against offline without and with refinement."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    from reproduce_paper import DRIVE, drive_for
+
+    root = drive_for("residential_pose_noise")
+    featmap = [sys.executable, "-m", "featmap.cli", "run", "--drive", DRIVE, "--data-dir", str(root)]
+    quiet = ["--set", "output.plots=false", "--set", "output.html=false", "--set", "output.kml=false"]
+    runs = {"online (--online 25)": ["--online", "25"],
+            "offline, refinement none": ["--method", "proposed", "--set", "refinement.method=none"],
+            "offline, default (pose_graph)": ["--method", "proposed"]}
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for k, (name, extra) in enumerate(runs.items()):
+            out = Path(tmp) / f"r{k}"
+            subprocess.run(featmap + [*extra, *quiet, "--out", str(out)], check=True, cwd=ROOT, capture_output=True)
+            truth = json.loads((out / "metrics.json").read_text())["methods"]["proposed"]
+            score = truth["scores"]["truth"]
+            rows.append([name, str(truth["count"]), f"{score['precision']:.3f}", f"{score['recall']:.3f}",
+                         f"{score['redundancy']:.2f}", f"{score['offset_cm']:.1f}", f"{score['corner_err_cm']:.1f}"])
+            print(" | ".join(rows[-1]), flush=True)
+    header = ["residential_pose_noise (0.10 m / 0.2 deg)", "features", "precision", "recall", "redundancy",
+              "offset cm", "corner cm"]
+    return header, rows
+
+
 def markdown(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
@@ -131,7 +161,7 @@ def markdown(header: list[str], rows: list[list[str]]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--parts", nargs="+", default=["revisits", "drive"], choices=["revisits", "drive"])
+    parser.add_argument("--parts", nargs="+", default=["revisits", "drive", "noise"], choices=["revisits", "drive", "noise"])
     parser.add_argument("--revisits", type=int, nargs="+", default=[1, 5, 20, 50])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--docs", action="store_true", help="write the tables into docs/online.md")
@@ -147,6 +177,10 @@ def main() -> None:
         header, rows = part_drive(args.repeats)
         tables["online_drive"] = (f"{command} ({stamp}); `featmap run --online 25`, medians of {args.repeats} "
                                   "processes:\n\n" + markdown(header, rows))
+    if "noise" in args.parts:
+        header, rows = part_noise()
+        tables["online_noise"] = (f"{command} ({stamp}); one run each, scored against the simulator's truth:\n\n"
+                                  + markdown(header, rows))
     for body in tables.values():
         print("\n" + body)
     if args.docs:
