@@ -201,9 +201,17 @@ def run(
     overrides = list(set_ or [])
     if online is not None:
         method = "proposed" if method == "all" else method      # the one method that fuses a scan at a time
+        from featmap.config import apply_overrides
+        from featmap.pipeline import FeatmapConfig
+
+        asked = apply_overrides({}, overrides, FeatmapConfig).get("refinement", {}).get("method", "none")
+        if asked != "none":
+            _fail(f"--online uses the source's poses as they come, but --set asks for refinement.method={asked} "
+                  "(it needs the whole drive): leave it out")
         overrides.append("refinement.method=none")
-        reporter.info("--online: the source's poses are used as they come (pose refinement needs the whole drive)")
     cfg = load_config(config or preset, overrides)
+    if online is not None:
+        reporter.info("--online: the source's poses are used as they come (pose refinement needs the whole drive)")
     methods = resolve_methods(method)
     store = SegmentStore(cache_dir)
     if preset is not None:

@@ -173,6 +173,25 @@ def _build_cell_table(keys):
     return table_keys, table_cell, mask
 
 
+@compiled()
+def insert_cell_keys(table_keys, table_cell, mask, keys, first_cell):
+    """Add the distinct new cell ``keys`` (not yet in the table) as cells ``first_cell, first_cell + 1, ...``
+    to a table of :func:`_build_cell_table` with room for them (at most half full afterwards)."""
+    for c in range(len(keys)):
+        s = _hash_slot(keys[c], mask)
+        while table_keys[s] != -1:
+            s = (s + 1) & mask
+        table_keys[s] = keys[c]
+        table_cell[s] = first_cell + c
+
+
+def grid_cell_size(eta: float, median_length: float, span: float) -> float:
+    """The link forest's cell (metres): a few eta or a quarter of a typical segment (only the speed depends on
+    it, not the links' components), and large enough that ``span`` metres are at most 2^26 cells (int64
+    cell keys)."""
+    return max(4.0 * eta, median_length / 4.0, span / 2**26, 1e-3)
+
+
 @compiled(inline="always")
 def _lookup(table_keys, table_cell, mask, key):
     s = _hash_slot(key, mask)

@@ -33,11 +33,11 @@ from featmap.fusion import link_forest as lf
 from featmap.fusion.base import MIN_SEGMENT_LENGTH_M, FusionResult
 from featmap.fusion.proposed import _meets_criteria, evaluate_pairs, fuse_links, support_rule
 from featmap.fusion.registry import FusionConfig, finish_fusion, working_origin
-from featmap.geometry import as_segments, segment_lengths
+from featmap.geometry import MAX_MAP_SPAN_M, as_segments, segment_lengths
 
 GRID_OFFSET_CELLS = 2 ** 25
-"""The grid's cell (0, 0) lies this many cells south-west of the first segment (cell coordinates stay
-positive for +-33 million cells, i.e. +-67,000 km at 2 m cells)."""
+"""The grid's cell (0, 0) lies this many cells south-west of the first segment: with cells of at least
+``2 * MAX_MAP_SPAN_M / 2**26`` (0.6 m), the grid reaches ``MAX_MAP_SPAN_M`` from it every way."""
 
 
 class OnlineFusion:
@@ -55,9 +55,9 @@ class OnlineFusion:
         self._rms: list[np.ndarray | None] = []
         self._valid: list[np.ndarray] = []
         self._n = 0                                 # valid segments so far (the kernel's indices 0 .. n-1)
+        self._cell_size: float | None = None        # the grid, fixed by the first valid segments
         self._capacity = 0
         self._cells: dict[int, int] = {}            # grid key -> cell index
-        self._cell_keys = np.zeros(0, np.int64)
         self._n_groups = self._n_links = self._n_undecided = 0
         self._undecided_i = np.empty(1024, np.int64)
         self._undecided_j = np.empty(1024, np.int64)
@@ -92,7 +92,8 @@ class OnlineFusion:
             rms: (K,) each segment's fit rms from the extraction (metres), or None (then no segment
                 counts as a clean view in :meth:`fused`, as offline without an rms column).
         Raises:
-            ValueError: a NaN or infinite coordinate, or ``rms`` of another length.
+            ValueError: a NaN or infinite coordinate, ``rms`` of another length, or a segment farther than
+                ``MAX_MAP_SPAN_M`` from the first ones (nothing of the scan is kept then).
         """
         segments = as_segments(segments).astype(np.float64, copy=True)
         if not np.isfinite(segments).all():
@@ -105,38 +106,40 @@ class OnlineFusion:
             self.origin = working_origin(segments)
         shift = np.tile(self.origin, 2) if self.origin is not None else np.zeros(4)
         valid = segment_lengths(segments - shift) > MIN_SEGMENT_LENGTH_M
+        new = segments[valid] - shift
+        keys = None
+        if len(new):
+            if self._cell_size is None:
+                self._start_grid(new)
+            centres = 0.5 * (new[:, :2] + new[:, 2:])
+            cell_xy = np.floor((centres - self._grid_origin) / self._cell_size).astype(np.int64)
+            if cell_xy.min() < 0 or cell_xy.max() >= self._ny:
+                raise ValueError(f"segments lie more than {MAX_MAP_SPAN_M:g} m from the first scan's (the grid's reach)")
+            keys = cell_xy[:, 0] * self._ny + cell_xy[:, 1]
         self._scans.append(segments)
         self._rms.append(rms)
         self._valid.append(valid)
-        new = segments[valid] - shift
-        if len(new):
-            self._link(new)
+        if keys is not None:
+            self._link(new, keys)
         return len(self._scans) - 1
 
-    def _link(self, new: np.ndarray) -> None:
+    def _link(self, new: np.ndarray, keys: np.ndarray) -> None:
+        """Link the (K, 4) valid new segments (working frame; grid ``keys`` (K,)) to the earlier ones."""
         start = self._n
         end = start + len(new)
-        if self._capacity == 0:
-            self._start_grid(new)
         self._reserve(end)
         self._seg[start:end] = new
         self._parent[start:end] = np.arange(start, end)
         self._comp_size[start:end] = 1
-        centres = 0.5 * (new[:, :2] + new[:, 2:])
-        cell_xy = np.floor((centres - self._grid_origin) / self._cell_size).astype(np.int64)
-        keys = cell_xy[:, 0] * self._ny + cell_xy[:, 1]
-        fresh = [int(k) for k in dict.fromkeys(keys.tolist()) if int(k) not in self._cells]
+        fresh = [k for k in dict.fromkeys(keys.tolist()) if k not in self._cells]
         if fresh:
-            for k in fresh:
-                self._cells[k] = len(self._cells)
-            self._cell_keys = np.concatenate([self._cell_keys, np.array(fresh, np.int64)])
-            self._table_keys, self._table_cell, self._mask = lf._build_cell_table(self._cell_keys)
-            self._cell_head = np.concatenate([self._cell_head, np.full(len(fresh), -1, np.int64)])
-        self._cell_of[start:end] = [self._cells[int(k)] for k in keys.tolist()]
+            self._add_cells(np.array(fresh, np.int64))
+        self._cell_of[start:end] = [self._cells[k] for k in keys.tolist()]
         scan_start = np.array([start, end], np.int64)
-        # the band within which a criterion is left to numpy grows with the coordinates (as offline)
+        # The band within which a criterion is left to numpy grows with the coordinates (as offline), and
+        # here also covers the rounding of cell coordinates about 2^25 cells from the grid's origin.
         self._max_abs = max(self._max_abs, float(np.abs(new).max()))
-        dist_band = 1e-9 + lf.DISTANCE_BAND_REL * self._max_abs
+        dist_band = 1e-9 + lf.DISTANCE_BAND_REL * self._max_abs + 16.0 * self._cell_size * 2.0 ** -27
         (self._n_groups, self._n_links, self._n_undecided,
          self._undecided_i, self._undecided_j) = lf.link_forest_kernel(
             self._seg, self._order, scan_start, 0, 1, self._cell_of,
@@ -150,16 +153,35 @@ class OnlineFusion:
             self._undecided_i, self._undecided_j, self._n_undecided, self.stats)
         self._n = end
 
+    def _add_cells(self, fresh: np.ndarray) -> None:
+        """New grid cells (their keys (K,), none known yet): into the hash table (rebuilt, twice as large,
+        only when it would be more than half full) and the per-cell arrays (grown by doubling)."""
+        first, n = len(self._cells), len(self._cells) + len(fresh)
+        for c, k in enumerate(fresh.tolist()):
+            self._cells[k] = first + c
+        if n > len(self._cell_keys):
+            size = max(2 * len(self._cell_keys), n, 64)
+            self._cell_keys = np.concatenate([self._cell_keys[:first], np.zeros(size - first, np.int64)])
+            self._cell_head = np.concatenate([self._cell_head[:first], np.full(size - first, -1, np.int64)])
+        self._cell_keys[first:n] = fresh
+        if 2 * n + 16 > len(self._table_keys):
+            self._table_keys, self._table_cell, self._mask = lf._build_cell_table(self._cell_keys[:n])
+        else:
+            lf.insert_cell_keys(self._table_keys, self._table_cell, self._mask, fresh, first)
+
     def _start_grid(self, first: np.ndarray) -> None:
-        """Fix the grid from the first segments: cells of 4 eta or a quarter of their median length (only
-        the speed depends on it, not the links' components) and positive cell coordinates."""
+        """Fix the grid from the first segments: the offline method's cell (:func:`link_forest.grid_cell_size`;
+        only the speed depends on it), large enough that the grid reaches ``MAX_MAP_SPAN_M`` from the first
+        segment every way (cell coordinates from 0 to 2^26)."""
         eta = float(self.section.eta_m)
-        self._cell_size = max(4.0 * eta, float(np.median(segment_lengths(first))) / 4.0, 1e-3)
+        self._cell_size = lf.grid_cell_size(eta, float(np.median(segment_lengths(first))), 2 * MAX_MAP_SPAN_M)
         centre = 0.5 * (first[0, :2] + first[0, 2:])
         self._grid_origin = np.floor(centre / self._cell_size) * self._cell_size - GRID_OFFSET_CELLS * self._cell_size
         self._ny = 2 * GRID_OFFSET_CELLS
         self._max_abs = 0.0
+        self._cell_keys = np.zeros(0, np.int64)
         self._cell_head = np.zeros(0, np.int64)
+        self._table_keys = np.zeros(0, np.int64)
 
     def _reserve(self, n: int) -> None:
         """Grow the per-segment arrays (doubling) to hold ``n`` segments."""

@@ -150,8 +150,7 @@ def linked_pairs(segments: np.ndarray, scan: np.ndarray, config: ProposedConfig,
     centres = segment_midpoints(segments)
     origin = centres.min(axis=0)
     span = float((centres.max(axis=0) - origin).max())
-    # cells of a few eta or a quarter of a typical segment, and at most 2^26 per axis (int64 cell keys)
-    cell_size = max(4.0 * eta, float(np.median(segment_lengths(segments))) / 4.0, span / 2**26, 1e-3)
+    cell_size = lf.grid_cell_size(eta, float(np.median(segment_lengths(segments))), span)
     cell_xy = np.floor((centres - origin) / cell_size).astype(np.int64)
     ny = int(cell_xy[:, 1].max()) + 1
     keys, cell_of = np.unique(cell_xy[:, 0] * ny + cell_xy[:, 1], return_inverse=True)

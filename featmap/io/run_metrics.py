@@ -88,6 +88,13 @@ class RefinementRecord(_Model):
     slam_poses: bool = Field(False, description="the source's poses were taken as a SLAM result (held near them by the slam_absolute_* prior where set)")
 
 
+class OnlineRecord(_Model):
+    """How a run mapped online (``featmap run --online N``; its per-scan times are in ``online.csv``)."""
+
+    every: int = Field(description="the map was made after every this many scans, and after the last")
+    maps: int = Field(description="how many times the map was made")
+
+
 class RunMetrics(_Model):
     schema_version: int = SCHEMA_VERSION
     featmap_version: str
@@ -100,6 +107,7 @@ class RunMetrics(_Model):
     timings_s: dict[str, Optional[float]]
     methods: dict[str, MethodRecord]
     refinement: Optional[RefinementRecord] = Field(None, description="pose refinement before fusion (None: runs before it existed)")
+    online: Optional[OnlineRecord] = Field(None, description="the scans were mapped online, one at a time (None: all at once)")
 
     def primary_scores(self, method: str) -> dict[str, Score]:
         """The primary evaluator's scores of ``method`` ({} when the run had no reference)."""

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -102,20 +103,11 @@ def extract_source(source: ScanSource, config: ExtractionConfig, store: SegmentS
     section = getattr(config, extractor.name)
     results: dict[int, ScanSegments] = {}
     stamps: dict[int, float] = {}
-    out = Extraction(frames=[], scans=[], poses=np.zeros((0, 4, 4)), dimension=source.dimension,
-                     slam_poses=bool(getattr(source, "slam_poses", False)))      # (a source that does not say: no)
+    out = empty_extraction(source)
     start = time.perf_counter()
     with reporter.progress(f"extracting {source.name}", len(source)) as advance:
         def uncached():
-            for position, frame in enumerate(source.frames):
-                try:
-                    scan = source[position]
-                except DatasetError as exc:
-                    if not skip_bad_scans:
-                        raise DatasetError(f"{exc} (use --skip-bad-scans to leave it out)") from None
-                    out.skipped[frame] = str(exc)
-                    advance(1)
-                    continue
+            for _, frame, scan in readable_scans(source, skip_bad_scans, out.skipped, advance):
                 stamps[frame] = float(scan.timestamp)
                 key = scan_key(scan.points, extractor, section)
                 cached = store.get(key)
@@ -142,6 +134,32 @@ def extract_source(source: ScanSource, config: ExtractionConfig, store: SegmentS
     out.poses = poses[[position[f] for f in out.frames]] if out.frames else np.zeros((0, 4, 4))
     check_poses(source, out.frames, out.poses)
     return out
+
+
+def empty_extraction(source: ScanSource) -> Extraction:
+    """An Extraction of no scan yet, of ``source``'s dimension and kind of poses."""
+    return Extraction(frames=[], scans=[], poses=np.zeros((0, 4, 4)), dimension=source.dimension,
+                      slam_poses=bool(getattr(source, "slam_poses", False)))      # (a source that does not say: no)
+
+
+def readable_scans(source: ScanSource, skip_bad_scans: bool, skipped: dict[int, str],
+                   advance: Callable[[int], None]) -> Iterator[tuple[int, int, object]]:
+    """``(position, frame, scan)`` of every selected scan of ``source`` that can be read, in order.
+
+    Raises:
+        DatasetError: an unreadable scan, naming it, unless ``skip_bad_scans``: then it is left out, its
+            reason recorded in ``skipped`` (frame -> message) and counted by ``advance(1)``.
+    """
+    for position, frame in enumerate(source.frames):
+        try:
+            scan = source[position]
+        except DatasetError as exc:
+            if not skip_bad_scans:
+                raise DatasetError(f"{exc} (use --skip-bad-scans to leave it out)") from None
+            skipped[frame] = str(exc)
+            advance(1)
+            continue
+        yield position, frame, scan
 
 
 def check_poses(source: ScanSource, frames: list[int], poses: np.ndarray) -> None:

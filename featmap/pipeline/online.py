@@ -5,9 +5,10 @@ This is how a vehicle would run featmap while it drives: scans in order, one at 
 no segment cache (every scan is extracted now, so its time is the real cost). Pose refinement needs the
 whole drive and is not done: the source's poses are used as they are. The fusion is
 :class:`featmap.fusion.online.OnlineFusion` (the proposed method): the last map is the one ``featmap run
---method proposed --set refinement.method=none`` makes of the same scans. :func:`map_online` returns the
-per-scan times (extraction, linking, and making the map where it was made) beside the usual extraction
-record, so that the run folder and its scores are those of any run.
+--method proposed --set refinement.method=none`` makes of the same scans (bit for bit when both fuse in
+the same whole-kilometre frame, as a drive within 500 m of its origin always does; see that module).
+:func:`map_online` returns the per-scan times (extraction, linking, and making the map where it was made)
+beside the usual extraction record, so that the run folder and its scores are those of any run.
 """
 
 from __future__ import annotations
@@ -18,12 +19,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from featmap.datasets.base import ScanSource
-from featmap.errors import ConfigError, DatasetError
+from featmap.errors import ConfigError
 from featmap.extraction import extractor_for, segments_to_world, world_fields
 from featmap.fusion import FusionResult
 from featmap.fusion.online import OnlineFusion
 from featmap.pipeline.config import FeatmapConfig
-from featmap.pipeline.extract import Extraction, check_poses
+from featmap.pipeline.extract import Extraction, check_poses, empty_extraction, readable_scans
 from featmap.reporting import NullReporter, Reporter
 
 ONLINE_METHODS = ("proposed",)
@@ -65,12 +66,22 @@ class OnlineMapping:
                          f"{k if made else ''}")
         return "\n".join(lines) + "\n"
 
-    def timings(self) -> dict[str, float]:
-        """Medians and maxima (seconds) for metrics.json's ``timings_s``."""
+    @property
+    def maps(self) -> int:
+        """How many times the map was made."""
+        return int(np.isfinite(self.fused_s).sum())
+
+    @property
+    def fusion_seconds(self) -> float:
+        """The fusion's share of the run: every scan's linking and making the last map."""
+        return float(self.link_s.sum() + np.nansum(self.fused_s[-1:]))
+
+    def timings(self) -> dict[str, float | None]:
+        """Medians and maxima (seconds) for metrics.json's ``timings_s`` (None when no scan was mapped)."""
         made = self.fused_s[np.isfinite(self.fused_s)]
 
         def stat(values, f):
-            return round(float(f(values)), 5) if len(values) else 0.0
+            return round(float(f(values)), 5) if len(values) else None
 
         return {"online_extraction_per_scan_median": stat(self.extract_s, np.median),
                 "online_link_per_scan_median": stat(self.link_s, np.median),
@@ -85,7 +96,8 @@ def check_online(config: FeatmapConfig, methods: list[str], every: int) -> None:
     other = [m for m in methods if m not in ONLINE_METHODS]
     if other:
         raise ConfigError(f"--online fuses one scan at a time with {', '.join(ONLINE_METHODS)} only, not "
-                          f"{', '.join(other)} (they cluster all segments at once): use --method proposed")
+                          f"{', '.join(other)} ({'it clusters' if len(other) == 1 else 'they cluster'} all segments at once): "
+                          "use --method proposed")
     if config.refinement.method != "none":
         raise ConfigError(f"--online uses the source's poses as they come, but refinement.method is "
                           f"'{config.refinement.method}' (it needs the whole drive): add --set refinement.method=none")
@@ -97,33 +109,24 @@ def map_online(source: ScanSource, config: FeatmapConfig, every: int, reporter: 
 
     Raises:
         DatasetError: an unreadable scan (unless ``skip_bad_scans``: then it is left out and listed), or
-            poses that are not finite.
+            the pose of a scan read that is not finite (as it comes), or poses that span more than any map.
     """
     extractor = extractor_for(source.dimension, config.extraction)
     section = getattr(config.extraction, extractor.name)
     all_poses = source.poses()
-    check_poses(source, list(source.frames), all_poses)
     online = OnlineFusion(config.fusion)
-    out = Extraction(frames=[], scans=[], poses=np.zeros((0, 4, 4)), dimension=source.dimension,
-                     slam_poses=bool(getattr(source, "slam_poses", False)))
+    out = empty_extraction(source)
     stamps, poses, rows = [], [], []
     result = online.fused()
     n = len(source.frames)
     start = time.perf_counter()
     with reporter.progress(f"mapping {source.name} online", n) as advance:
-        for position, frame in enumerate(source.frames):
-            try:
-                scan = source[position]
-            except DatasetError as exc:
-                if not skip_bad_scans:
-                    raise DatasetError(f"{exc} (use --skip-bad-scans to leave it out)") from None
-                out.skipped[frame] = str(exc)
-                advance(1)
-                continue
+        for position, frame, scan in readable_scans(source, skip_bad_scans, out.skipped, advance):
+            T = all_poses[position]
+            check_poses(source, [frame], T[None])
             t0 = time.perf_counter()
             segments = extractor.extract(scan.points, section)
             t1 = time.perf_counter()
-            T = all_poses[position]
             online.add_scan(segments_to_world(segments, T), world_fields(segments, T)["rms"])
             t2 = time.perf_counter()
             fused_s, features = np.nan, -1
@@ -141,22 +144,27 @@ def map_online(source: ScanSource, config: FeatmapConfig, every: int, reporter: 
         t2 = time.perf_counter()
         result = online.fused()
         rows[-1] = rows[-1][:4] + (time.perf_counter() - t2, len(result))
-    out.seconds = time.perf_counter() - start
+    columns = list(zip(*rows)) if rows else [()] * 6
+    mapping = OnlineMapping(extraction=out, result=result, every=every,
+                            frames=np.array(columns[0], np.int64), segments=np.array(columns[1], np.int64),
+                            extract_s=np.array(columns[2], float), link_s=np.array(columns[3], float),
+                            fused_s=np.array(columns[4], float), features=np.array(columns[5], np.int64))
+    # the extraction's time: reading and extracting, without the linking and the maps (the fusion's)
+    out.seconds = time.perf_counter() - start - float(mapping.link_s.sum() + np.nansum(mapping.fused_s))
     out.extracted_now = len(out.frames)
     out.poses = np.array(poses) if poses else np.zeros((0, 4, 4))
     out.timestamps = np.array(stamps, dtype=float)
-    columns = list(zip(*rows)) if rows else [()] * 6
-    return OnlineMapping(extraction=out, result=result, every=every,
-                         frames=np.array(columns[0], np.int64), segments=np.array(columns[1], np.int64),
-                         extract_s=np.array(columns[2], float), link_s=np.array(columns[3], float),
-                         fused_s=np.array(columns[4], float), features=np.array(columns[5], np.int64))
-
+    check_poses(source, out.frames, out.poses)          # (the span of the poses used, as offline)
+    return mapping
 
 def report_online(online: OnlineMapping, reporter: Reporter) -> None:
     """One line on what mapping online cost per scan."""
+    if not len(online.frames):
+        reporter.info("online: no scan could be mapped")
+        return
     t = online.timings()
-    made = int(np.isfinite(online.fused_s).sum())
     reporter.info(f"online: {len(online.frames)} scans one at a time: extraction {1e3 * t['online_extraction_per_scan_median']:.1f} ms "
                   f"and linking {1e3 * t['online_link_per_scan_median']:.2f} ms per scan (medians; linking at most "
-                  f"{1e3 * t['online_link_per_scan_max']:.1f} ms), the map made {made} times (every {online.every} scans) in "
-                  f"{1e3 * t['online_map_median']:.0f} ms (median; at most {1e3 * t['online_map_max']:.0f} ms); online.csv has each scan")
+                  f"{1e3 * t['online_link_per_scan_max']:.1f} ms), the map made {online.maps} time{'s' * (online.maps != 1)} "
+                  f"(every {online.every} scans) in {1e3 * t['online_map_median']:.0f} ms (median; at most "
+                  f"{1e3 * t['online_map_max']:.0f} ms); online.csv has each scan")

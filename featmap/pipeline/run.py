@@ -13,14 +13,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from featmap import __version__
 from featmap.datasets.base import ScanSource
 from featmap.evaluation import EVALUATORS, EvaluationContext, Evaluator, Reference
 from featmap.io.atomic import atomic_write_text
-from featmap.io.run_metrics import (GeoRecord, MethodRecord, RefinementRecord, RunMetrics, ScanCounts,
-                                    SourceRecord, write_run_metrics)
+from featmap.io.run_metrics import (GeoRecord, MethodRecord, OnlineRecord, RefinementRecord, RunMetrics,
+                                    ScanCounts, SourceRecord, write_run_metrics)
 from featmap.outputs import OUTPUTS, Output, RunProducts, write_outputs
 from featmap.pipeline.config import FeatmapConfig
 from featmap.pipeline.executor import Executor, SerialExecutor
@@ -124,7 +122,7 @@ class MappingPipeline:
                 import_seconds = warm_up(self.methods)
                 runs = fuse_methods(table, self.methods, self.config.fusion, self.reporter)
             else:       # the fusion's cost: every scan's linking and the last map
-                runs = [MethodRun("proposed", online.result, float(online.link_s.sum() + np.nansum(online.fused_s[-1:])))]
+                runs = [MethodRun("proposed", online.result, online.fusion_seconds)]
             t_eval = time.perf_counter()
             context = EvaluationContext(source.location, extraction.frames, source.geo_origin, self.config.evaluation,
                                         extraction.world_points(poses), table.segments, self.executor.workers)
@@ -152,10 +150,11 @@ class MappingPipeline:
                            "fusion_library_loading": round(import_seconds, 3),
                            **{f"fusion_{r.name}": round(r.seconds, 4) for r in runs},
                            "evaluation": round(eval_seconds, 3),
-                           **({} if online is None else {"online_every": online.every, **online.timings()})},
+                           **({} if online is None else online.timings())},
                 methods={r.name: MethodRecord(count=len(r.result), clusters_dropped=r.result.clusters_dropped,
                                               seconds=round(r.seconds, 4), scores=scores[r.name]) for r in runs},
                 refinement=refinement_record(refinement),
+                online=None if online is None else OnlineRecord(every=online.every, maps=online.maps),
             )
             primary = references.get(metrics.primary)
             truth = primary[1].data if primary is not None and hasattr(primary[1].data, "walls") else None

@@ -102,3 +102,41 @@ def test_bad_input_is_refused_before_anything_is_kept():
     with pytest.raises(ValueError, match="rms has 2 entries for 1 segments"):
         online.add_scan([[0.0, 0.0, 1.0, 1.0]], rms=[0.01, 0.02])
     assert online.n_scans == 0 and online.n_segments == 0
+
+
+def test_a_pair_within_rounding_of_a_threshold_is_decided_as_offline():
+    """Two views exactly eta = 0.5 m apart: left undecided by the compiled code and decided by numpy, as offline."""
+    online = OnlineFusion(SMALL_SUPPORT)
+    online.add_scan([[0.0, 0.0, 10.0, 0.0]])
+    online.add_scan([[0.0, 0.5, 10.0, 0.5]])
+    assert online._n_undecided == 1
+    assert online.links()[0].tolist() == [0]
+    assert_same_map(online, SMALL_SUPPORT, rms_given=False)
+
+
+def test_a_partner_exactly_eta_away_on_a_cell_boundary_is_found():
+    """Cell coordinates of the online grid are ~2^25 cells from its origin, where a coordinate is only good to
+    ~1e-8 m: a partner whose centre lies exactly eta from the segment, on a cell boundary, was not searched."""
+    config = FusionConfig.model_validate({"proposed": {"min_support": 2}, "refine": {"max_offset_m": 0}})
+    length, y = 16.93282940904733, 215.89357494307922
+    online = OnlineFusion(config)
+    online.add_scan([[-length / 2, 0, length / 2, 0], [0, y, length, y]])
+    online.add_scan([[0, y - 0.5, length, y - 0.5]])
+    result = assert_same_map(online, config, rms_given=False)
+    assert sorted(result.support.tolist()) == [1, 2]                # the two views fused, the lone wall kept
+
+
+def test_a_small_eta_still_reaches_walls_far_from_the_first_scan():
+    """eta = 1 mm and a first scan of 4 mm segments: the cell is at least 0.6 m, so the grid still reaches
+    150 km (with 4 mm cells it reached 134 km, and the far wall was never found again)."""
+    config = FusionConfig.model_validate({"proposed": {"eta_m": 0.001, "min_support": 3, "min_support_length_m": None,
+                                                       "clean_rms_ratio": None}})
+    online = OnlineFusion(config)
+    online.add_scan([[0.0, 0.0, 0.004, 0.0], [0.0, 0.01, 0.004, 0.01], [0.0, 0.02, 0.004, 0.02]])
+    for _ in range(3):
+        online.add_scan([[0.0, 5.0, 10.0, 5.0], [0.0, 5.0, 10.0, 5.0], [0.0, 150_000.0, 10.0, 150_000.0]])
+    result = assert_same_map(online, config, rms_given=False)
+    assert sorted(result.support.tolist()) == [3, 6]
+    with pytest.raises(ValueError, match="more than 2e\\+07 m from the first scan"):
+        online.add_scan([[0.0, 3e7, 10.0, 3e7]])
+    assert online.n_scans == 4                                    # the refused scan left nothing behind

@@ -38,7 +38,7 @@ def test_online_run_writes_the_offline_map_of_the_same_scans_and_each_scans_time
     assert int(rows[-1]["features"]) == fused > 0
     assert all(float(r["extract_ms"]) > 0 and float(r["link_ms"]) >= 0 for r in rows)
     metrics = read_run_metrics(tmp_path / "online" / "metrics.json")
-    assert metrics.timings_s["online_every"] == 7 and metrics.timings_s["online_link_per_scan_median"] >= 0
+    assert metrics.online.every == 7 and metrics.online.maps == 6 and metrics.timings_s["online_link_per_scan_median"] >= 0
     assert metrics.scans.extracted_now == 40 and metrics.scans.from_cache == 0     # no cache: each scan's real cost
     assert list(metrics.methods) == ["proposed"] and metrics.refinement.method == "none"
     assert "online: 40 scans one at a time" in online.output
@@ -63,6 +63,10 @@ def test_online_refuses_what_it_cannot_do_in_one_line(case1_drive, tmp_path):
     res = _run(case1_drive, tmp_path / "o", "--online", 5, "--method", "density")
     assert res.exit_code == 2
     assert res.output.strip().splitlines()[-1].startswith("featmap: error: --online fuses one scan at a time with proposed only")
+    res = _run(case1_drive, tmp_path / "o", "--online", 5, "--set", "refinement.method=pose_graph")
+    assert res.exit_code == 2
+    assert res.output.strip().splitlines()[-1] == ("featmap: error: --online uses the source's poses as they come, but --set "
+                                                   "asks for refinement.method=pose_graph (it needs the whole drive): leave it out")
     res = _run(case1_drive, tmp_path / "o", "--online", 0)
     assert res.exit_code == 2 and "featmap: error:" in res.output and "--online" in res.output
     cfg = load_config(None, [])                                     # the library: refinement must be off
@@ -82,3 +86,26 @@ def test_an_unreadable_scan_stops_the_online_run_or_is_left_out(drive_copy, tmp_
     mapping = map_online(KittiRawDataset(root, drive, skip_bad_scans=True), cfg, 5, skip_bad_scans=True)
     assert 12 not in mapping.frames.tolist() and list(mapping.extraction.skipped) == [12]
     assert mapping.features[-1] == len(mapping.result) > 0
+
+
+def test_a_non_finite_pose_stops_the_online_run_at_its_scan_only_when_the_scan_is_read(drive_copy):
+    """As offline: the pose of a scan left out (unreadable, --skip-bad-scans) is not looked at."""
+    root, drive = drive_copy
+    data = root / drive[:10] / f"{drive}_sync"
+    points = np.fromfile(data / "velodyne_points" / "data" / "0000000012.bin", dtype=np.float32).reshape(-1, 4)
+    points[3, 1] = np.nan
+    points.tofile(data / "velodyne_points" / "data" / "0000000012.bin")
+
+    class NanPose(KittiRawDataset):
+        def poses(self):
+            poses = super().poses()
+            poses[self.frames.index(frame), 0, 3] = np.nan
+            return poses
+
+    cfg = load_config(None, ["refinement.method=none"])
+    frame = 12                                          # its scan is unreadable and left out: its pose does not matter
+    mapping = map_online(NanPose(root, drive, skip_bad_scans=True), cfg, 5, skip_bad_scans=True)
+    assert len(mapping.frames) == 39
+    frame = 20                                          # a scan that is read
+    with pytest.raises(DatasetError, match="frame 20: its pose has NaN or inf values"):
+        map_online(NanPose(root, drive, skip_bad_scans=True), cfg, 5, skip_bad_scans=True)
