@@ -1,6 +1,6 @@
 """Online mapping: what one more scan costs, and whether it grows as the map grows or its walls are seen again.
 
-    .venv/bin/python benchmarks/bench_online.py                 # all three tables (about 6 minutes)
+    .venv/bin/python benchmarks/bench_online.py                 # all four tables (about 7 minutes)
     .venv/bin/python benchmarks/bench_online.py --docs          # and write them into docs/online.md
     .venv/bin/python benchmarks/bench_online.py --parts revisits --revisits 1 5 20 50 100
 
@@ -13,6 +13,9 @@ Parts:
   seen (``fused()``) at the end; and, for comparison, fusing the same segments offline from scratch
   (``fuse("proposed")``), what re-making the map after a scan would cost without the online state.
   Each figure is the median of ``--repeats`` feeds (fresh state each time, compiled code loaded first).
+- ``corridor``: a long drive in which every scan reaches new grid cells (a 30 km corridor, 1 m per scan, six
+  8 m walls per scan): per-scan linking time over the first, middle and last thousand scans (does it grow
+  with the map's area?).
 - ``noise``: the default drive simulated with 0.10 m / 0.2 deg pose noise (``scripts/reproduce_paper.py``'s
   ``residential_pose_noise``), mapped online and offline without and with pose refinement: what mapping
   online without pose correction costs in accuracy.
@@ -74,6 +77,38 @@ def feed(passes: int, seed: int = 0) -> dict:
             "same": bool(np.array_equal(result.segments, offline.segments)),
             "link_median_ms": 1e3 * float(np.median(last)), "link_p99_ms": 1e3 * float(np.quantile(last, 0.99)),
             "map_s": map_s, "offline_s": offline_s}
+
+
+def corridor(n_scans: int, seed: int = 0) -> np.ndarray:
+    """Per-scan linking seconds (n_scans,) of a long drive that reaches new grid cells with every scan: 1 m
+    per scan along a corridor, six 8 m walls per scan 6 m either side (half of them up to 40 m farther out)."""
+    from featmap.fusion.online import OnlineFusion
+
+    rng = np.random.default_rng(seed)
+    online = OnlineFusion()
+    link = np.empty(n_scans)
+    for s in range(n_scans):
+        xs = s + rng.uniform(-20, 20, 6)
+        ys = rng.choice([-6.0, 6.0], 6) + rng.normal(0, 0.02, 6) + rng.uniform(-40, 40, 6) * (rng.random(6) < 0.5)
+        t0 = time.perf_counter()
+        online.add_scan(np.stack([xs - 4, ys, xs + 4, ys], 1))
+        link[s] = time.perf_counter() - t0
+    return link
+
+
+def part_corridor(n_scans: int, repeats: int) -> tuple[list[str], list[list[str]]]:
+    from featmap.fusion.registry import prepare_method
+
+    prepare_method("proposed")
+    runs = [corridor(n_scans) for _ in range(repeats)]
+    header = ["scans", "link ms per scan (median)", "99th percentile ms"]
+    rows = []
+    for a in sorted({0, n_scans // 3, 2 * n_scans // 3, n_scans - 1000}):
+        block = [r[a:a + 1000] for r in runs]
+        rows.append([f"{a + 1:,}-{a + 1000:,}", f"{statistics.median(1e3 * float(np.median(b)) for b in block):.3f}",
+                     f"{statistics.median(1e3 * float(np.quantile(b, 0.99)) for b in block):.3f}"])
+        print(" | ".join(rows[-1]), flush=True)
+    return header, rows
 
 
 def part_revisits(revisits: list[int], repeats: int) -> tuple[list[str], list[list[str]]]:
@@ -161,7 +196,9 @@ def markdown(header: list[str], rows: list[list[str]]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--parts", nargs="+", default=["revisits", "drive", "noise"], choices=["revisits", "drive", "noise"])
+    parser.add_argument("--parts", nargs="+", default=["revisits", "corridor", "drive", "noise"],
+                        choices=["revisits", "corridor", "drive", "noise"])
+    parser.add_argument("--corridor-scans", type=int, default=30_000)
     parser.add_argument("--revisits", type=int, nargs="+", default=[1, 5, 20, 50])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--docs", action="store_true", help="write the tables into docs/online.md")
@@ -173,6 +210,11 @@ def main() -> None:
         header, rows = part_revisits(args.revisits, args.repeats)
         tables["online_revisits"] = (f"{command} ({stamp}); a street of {N_WALLS} walls driven K times, medians of "
                                      f"{args.repeats} feeds:\n\n" + markdown(header, rows))
+    if "corridor" in args.parts:
+        header, rows = part_corridor(args.corridor_scans, args.repeats)
+        tables["online_corridor"] = (f"{command} ({stamp}); a {args.corridor_scans / 1e3:g} km corridor, 1 m and six walls "
+                                     f"per scan, every scan reaching new grid cells; medians of {args.repeats} feeds:\n\n"
+                                     + markdown(header, rows))
     if "drive" in args.parts:
         header, rows = part_drive(args.repeats)
         tables["online_drive"] = (f"{command} ({stamp}); `featmap run --online 25`, medians of {args.repeats} "
