@@ -31,7 +31,7 @@ import numpy as np
 
 from featmap.fusion import link_forest as lf
 from featmap.fusion.base import MIN_SEGMENT_LENGTH_M, FusionResult
-from featmap.fusion.proposed import _meets_criteria, evaluate_pairs, fuse_links, support_rule
+from featmap.fusion.proposed import decided_links, fuse_links, support_rule
 from featmap.fusion.registry import FusionConfig, finish_fusion, working_origin
 from featmap.geometry import MAX_MAP_SPAN_M, as_segments, segment_lengths
 
@@ -212,12 +212,8 @@ class OnlineFusion:
         were added), with the components and first-link scans of all linked pairs."""
         if self._capacity == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        i, j = self._links_i[:self._n_links], self._links_j[:self._n_links]
-        if self._n_undecided:
-            ui, uj = self._undecided_i[:self._n_undecided], self._undecided_j[:self._n_undecided]
-            ok = _meets_criteria(evaluate_pairs(self._seg[:self._n], ui, uj), self.section)
-            i, j = np.concatenate([i, ui[ok]]), np.concatenate([j, uj[ok]])
-        return np.minimum(i, j).astype(np.int64), np.maximum(i, j).astype(np.int64)
+        return decided_links(self._seg[:self._n], self._links_i[:self._n_links], self._links_j[:self._n_links],
+                             self._undecided_i[:self._n_undecided], self._undecided_j[:self._n_undecided], self.section)
 
     def fused(self) -> FusionResult:
         """The fused map of every scan so far (what ``fuse("proposed", *self.segments()[:2], config,

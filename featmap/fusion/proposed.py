@@ -181,12 +181,18 @@ def linked_pairs(segments: np.ndarray, scan: np.ndarray, config: ProposedConfig,
             n_groups, links_i, links_j, n_links, undecided_i, undecided_j, n_undecided, stats)
         if progress is not None:
             progress(int(b), n_scans)
-    i, j = links_i[:n_links], links_j[:n_links]
-    if n_undecided:
-        ui, uj = undecided_i[:n_undecided], undecided_j[:n_undecided]
-        ok = _meets_criteria(evaluate_pairs(segments, ui, uj), config)
-        i, j = np.concatenate([i, ui[ok]]), np.concatenate([j, uj[ok]])
-    return np.minimum(i, j), np.maximum(i, j)
+    return decided_links(segments, links_i[:n_links], links_j[:n_links], undecided_i[:n_undecided],
+                         undecided_j[:n_undecided], config)
+
+
+def decided_links(segments: np.ndarray, i: np.ndarray, j: np.ndarray, undecided_i: np.ndarray,
+                  undecided_j: np.ndarray, config: ProposedConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The link forest's links ``(i, j)`` (K,) and those of its undecided pairs (U,) that meet the criteria as
+    numpy computes them (pairs within rounding of a threshold), as ``(min, max)`` index pairs of ``segments``."""
+    if len(undecided_i):
+        ok = _meets_criteria(evaluate_pairs(segments, undecided_i, undecided_j), config)
+        i, j = np.concatenate([i, undecided_i[ok]]), np.concatenate([j, undecided_j[ok]])
+    return np.minimum(i, j).astype(np.int64), np.maximum(i, j).astype(np.int64)
 
 
 def _meets_criteria(crit: PairCriteria, config: ProposedConfig) -> np.ndarray:
