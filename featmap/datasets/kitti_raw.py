@@ -99,8 +99,9 @@ class KittiRawDataset(FrameSource):
         self.frames = selected
         self.T_velo_imu = np.asarray(self._raw.calib.T_velo_imu)
         self._T_imu_velo = np.linalg.inv(self.T_velo_imu)
-        self._stamps = read_timestamps(self.drive_dir / "velodyne_points" / "timestamps.txt") \
-            if (self.drive_dir / "velodyne_points" / "timestamps.txt").exists() else None
+        velo_stamps = self.drive_dir / "velodyne_points" / "timestamps.txt"
+        # without the scans' own timestamps, the OXTS packets' (one per frame, synchronised with the scans)
+        self._stamps = read_timestamps(velo_stamps if velo_stamps.exists() else self.drive_dir / "oxts" / "timestamps.txt")
         first = self._raw.oxts[0].packet
         try:
             self.geo_origin = GeoFrame(float(first.lat), float(first.lon), float(first.alt))
@@ -168,7 +169,7 @@ class KittiRawDataset(FrameSource):
     # -- frames ---------------------------------------------------------------------------------------
     def scan(self, frame: int) -> Scan:
         points = read_velo_bin(self._raw.velo_files[self._position[frame]])
-        stamp = float(self._stamps[frame]) if self._stamps is not None and frame < len(self._stamps) else 0.1 * frame
+        stamp = float(self._stamps[frame])
         return Scan(index=frame, points=points, T_world_sensor=self.pose(frame), timestamp=stamp)
 
     def pose(self, frame: int) -> np.ndarray:

@@ -338,7 +338,8 @@ def read_carmen(path: str | Path, max_range_m: float | None = None) -> CarmenLog
                 elif _MESSAGE_TYPE.match(head):
                     skipped[head] = skipped.get(head, 0) + 1
                 else:
-                    raise InputFileError(path, f"not a CARMEN log: line starts with '{head[:20]}' "
+                    shown = head[:20].encode("unicode_escape").decode("ascii")   # control bytes as \x00, not raw
+                    raise InputFileError(path, f"not a CARMEN log: line starts with '{shown}' "
                                                "instead of a message type such as FLASER", lineno)
         except (EOFError, zlib.error, gzip.BadGzipFile, OSError) as exc:
             what = f"truncated or corrupt {kind} data" if kind else f"cannot read ({exc})"

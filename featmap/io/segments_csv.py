@@ -215,4 +215,8 @@ def read_fused_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     segments = np.stack([col[c] for c in ("x1", "y1", "x2", "y2")], axis=1)
     _check_extent(path, segments)
     support = table.integers.get("support", np.ones(len(segments), np.int64))
+    if (support < 1).any():
+        row = int(np.argmax(support < 1))
+        raise InputFileError(path, f"column 'support': {int(support[row])} (a feature is supported by at least one "
+                                   "segment)", row + 2)
     return segments, support

@@ -136,3 +136,34 @@ def test_a_fused_map_beyond_any_map_of_the_earth_is_one_line(tmp_path, row, need
         {"type": "Feature", "properties": {}, "geometry": {"type": "Polygon", "coordinates": [ring]}}]}))
     # evaluate used to try to sample a 1e13 m segment every 10 cm (a MemoryError traceback)
     one_line_error(cli("evaluate", path, "--truth", truth, "--origin", "49.01,8.42"), needle)
+
+
+def test_a_drive_without_velodyne_timestamps_takes_the_oxts_ones(drive_copy):
+    """Not 0.1 s times the frame number: the OXTS packets' timestamps, one per frame, synchronised with the scans."""
+    from featmap.datasets import KittiRawDataset
+
+    root, drive = drive_copy
+    data = root / drive[:10] / f"{drive}_sync"
+    oxts = read_timestamps(data / "oxts" / "timestamps.txt")
+    # a 5 Hz drive (0.2 s between frames), so that a fallback of 0.1 s per frame shows
+    (data / "oxts" / "timestamps.txt").write_text("".join(f"2011-09-26 13:02:{25 + k // 5:02d}.{(k % 5) * 2 * 10**8 + 7:09d}\n"
+                                                          for k in range(len(oxts))))
+    (data / "velodyne_points" / "timestamps.txt").unlink()
+    ds = KittiRawDataset(root, drive)
+    assert ds[0].timestamp == pytest.approx(read_timestamps(data / "oxts" / "timestamps.txt")[0])
+    assert ds[13].timestamp - ds[3].timestamp == pytest.approx(2.0, abs=1e-6)
+
+
+def test_a_fused_map_with_a_support_below_one_names_its_row(tmp_path):
+    path = tmp_path / "f.csv"
+    path.write_text("x1,y1,x2,y2,support\n0,0,1,0,3\n0,1,1,1,0\n")
+    with pytest.raises(InputFileError, match=r"f.csv:3: column 'support': 0 \(a feature is supported by at least one"):
+        read_fused_csv(path)
+
+
+def test_a_carmen_line_of_control_bytes_is_named_without_them(tmp_path):
+    path = tmp_path / "x.log"
+    path.write_bytes(b"\x00\x01junk 1 2 3\n")
+    with pytest.raises(InputFileError) as err:
+        read_carmen(path)
+    assert "line starts with '\\x00\\x01junk'" in str(err.value) and "\x00" not in str(err.value)
