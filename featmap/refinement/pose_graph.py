@@ -22,11 +22,11 @@ from featmap.refinement.base import (RefinementInput, RefinementMethod, Refineme
                                      correct_segments, interpolate_corrections, keyframes)
 from featmap.refinement.loops import LoopConfig, Loops, find_loops, loop_errors, loop_terms
 from featmap.refinement.matching import Matches, MatchCandidates, scan_pairs, segment_matches
-from featmap.refinement.terms import (AlignmentConfig, consistency, keep_if_better, normal_equations,
+from featmap.refinement.terms import (KeyframeAlignmentConfig, consistency, keep_if_better, normal_equations,
                                      solve_normal_equations)
 
 
-class PoseGraphConfig(AlignmentConfig):
+class PoseGraphConfig(KeyframeAlignmentConfig):
     """Joint segment-to-segment alignment of all scans with GPS/INS or odometry priors (world frame, metres)."""
 
     pair_radius_m: float = Field(40.0, gt=0, description="scans whose sensors were farther apart are not compared")

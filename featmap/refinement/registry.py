@@ -15,7 +15,7 @@ from pydantic import Field, create_model
 
 from featmap.config import Section
 from featmap.errors import ConfigError
-from featmap.refinement import pose_graph, scan_to_map
+from featmap.refinement import fixed_lag, pose_graph, scan_to_map
 from featmap.refinement.base import RefinementInput, RefinementMethod, RefinementResult
 from featmap.refinement.drives import DriveAlignmentConfig
 from featmap.refinement.terms import AlignmentConfig, with_slam_prior
@@ -27,7 +27,7 @@ def _keep_poses(inp: RefinementInput, config: object = None) -> RefinementResult
 
 
 NONE = RefinementMethod(name="none", title="no refinement (poses as given)", config_type=None, refine=_keep_poses)
-METHODS: tuple[RefinementMethod, ...] = (NONE, pose_graph.METHOD, scan_to_map.METHOD)
+METHODS: tuple[RefinementMethod, ...] = (NONE, pose_graph.METHOD, scan_to_map.METHOD, fixed_lag.METHOD)
 REFINEMENT_METHODS: dict[str, RefinementMethod] = {m.name: m for m in METHODS}
 DEFAULT_METHOD = "pose_graph"
 

@@ -16,10 +16,10 @@ from pydantic import Field
 from featmap.refinement.base import (RefinementInput, RefinementMethod, RefinementResult, apply_corrections,
                                      correct_segments, interpolate_corrections, keyframes)
 from featmap.refinement.matching import segment_matches
-from featmap.refinement.terms import AlignmentConfig, keep_if_better, normal_equations
+from featmap.refinement.terms import KeyframeAlignmentConfig, keep_if_better, normal_equations
 
 
-class ScanToMapConfig(AlignmentConfig):
+class ScanToMapConfig(KeyframeAlignmentConfig):
     """Sliding-window scan-to-map alignment, one scan at a time (world frame, metres)."""
 
     window_scans: int = Field(10, ge=1, description="each scan is aligned to this many scans before and after it")

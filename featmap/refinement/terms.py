@@ -58,8 +58,6 @@ class AlignmentConfig(Section):
     angle_deg: float = Field(5.0, gt=0, lt=90, description="matched segments are within this angle of parallel")
     margin_m: float = Field(0.5, ge=0, description="a segment may overlap another this far beyond its endpoints")
     min_overlap_m: float = Field(0.5, gt=0, description="shorter overlaps are not matched")
-    keyframe_distance_m: float = Field(0.3, ge=0, description="refine a scan once the sensor moved this far since the last refined one (others are interpolated)")
-    keyframe_angle_deg: float = Field(10.0, ge=0, description="... or turned this much")
     match_sigma_m: float = Field(0.02, gt=0, description="point-to-line noise per metre of overlap")
     robust_scale_m: float = Field(0.05, gt=0, description="Cauchy kernel scale of the point-to-line residuals")
     robust_gate_fraction: float = Field(0.0, ge=0, description="... at least this fraction of the round's gate (wider kernels while the gates are wide)")
@@ -76,6 +74,13 @@ class AlignmentConfig(Section):
     motion_floor_deg: float = Field(0.01, gt=0, description="relative heading prior never tighter than this (degrees)")
     min_improvement: float = Field(1.5, ge=1, description="keep the input poses unless the mean distance between matched segments of different scans shrinks by at least this factor ...")
     min_correction_m: float = Field(0.03, ge=0, description="... and some scan moves by at least this (a point 10 m from its sensor)")
+
+
+class KeyframeAlignmentConfig(AlignmentConfig):
+    """The shared settings, for the methods that solve keyframes and interpolate the scans between them."""
+
+    keyframe_distance_m: float = Field(0.3, ge=0, description="refine a scan once the sensor moved this far since the last refined one (others are interpolated)")
+    keyframe_angle_deg: float = Field(10.0, ge=0, description="... or turned this much")
 
 
 def with_slam_prior(config: AlignmentConfig, slam_poses: bool) -> AlignmentConfig:

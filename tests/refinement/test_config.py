@@ -13,7 +13,7 @@ def test_defaults_and_the_indoor_preset():
     assert cfg.refinement.pose_graph.absolute_sigma_m == 0.5           # GPS/INS poses: an absolute prior
     indoor = load_config("indoor_2d").refinement.pose_graph
     assert indoor.absolute_sigma_m is None and indoor.motion_sigma_m_per_sqrt_m > 0   # odometry poses
-    assert set(REFINEMENT_METHODS) == {"none", "pose_graph", "scan_to_map"}
+    assert set(REFINEMENT_METHODS) == {"none", "pose_graph", "scan_to_map", "fixed_lag"}
 
 
 @pytest.mark.parametrize("override,needle", [
