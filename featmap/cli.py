@@ -188,7 +188,7 @@ def run(
     workers: int = WorkersOpt,
     cache_dir: Path = CacheOpt,
     skip_bad_scans: bool = typer.Option(False, "--skip-bad-scans", help="Skip unreadable scans instead of failing."),
-    online: Optional[int] = typer.Option(None, "--online", min=1, help="Map online: each scan extracted and fused as it comes (proposed method, the source's poses, no cache), the map made every N scans; online.csv has each scan's times."),
+    online: Optional[int] = typer.Option(None, "--online", min=1, help="Map online: each scan extracted and fused as it comes (proposed method, poses corrected causally by fixed_lag, no cache), the map made every N scans; online.csv has each scan's times."),
 ):
     """Turn a scan source into fused wall maps (the embedded simulated drive when no source is given)."""
     from featmap.datasets import DATASETS, open_source
@@ -203,15 +203,18 @@ def run(
         method = "proposed" if method == "all" else method      # the one method that fuses a scan at a time
         from featmap.config import apply_overrides
         from featmap.pipeline import FeatmapConfig
+        from featmap.pipeline.online import ONLINE_REFINEMENT
 
-        asked = apply_overrides({}, overrides, FeatmapConfig).get("refinement", {}).get("method", "none")
-        if asked != "none":
-            _fail(f"--online uses the source's poses as they come, but --set asks for refinement.method={asked} "
-                  "(it needs the whole drive): leave it out")
-        overrides.append("refinement.method=none")
+        asked = apply_overrides({}, overrides, FeatmapConfig).get("refinement", {}).get("method")
+        if asked is None:
+            overrides.append(f"refinement.method={ONLINE_REFINEMENT[0]}")
+        elif asked not in ONLINE_REFINEMENT:
+            _fail(f"--online corrects the poses causally (refinement.method=fixed_lag) or not at all (none), but --set "
+                  f"asks for refinement.method={asked} (it needs the whole drive)")
     cfg = load_config(config or preset, overrides)
-    if online is not None:
-        reporter.info("--online: the source's poses are used as they come (pose refinement needs the whole drive)")
+    if online is not None and cfg.refinement.method == "fixed_lag":
+        reporter.info(f"--online: poses corrected causally (fixed_lag); each scan joins the map "
+                      f"{cfg.refinement.fixed_lag.lag_scans} scans after it came")
     methods = resolve_methods(method)
     store = SegmentStore(cache_dir)
     if preset is not None:

@@ -115,7 +115,8 @@ class MappingPipeline:
                 extraction = self.extract(source)
             for message in extraction.discarded:
                 self.reporter.warning(f"discarded a corrupt cache entry and extracted again: {message}")
-            refinement = refine_extraction(extraction, self.config.refinement)
+            # (online, the poses were refined causally while mapping)
+            refinement = refine_extraction(extraction, self.config.refinement) if online is None else online.refinement
             poses = refinement.poses
             table = extraction.world_table(poses)
             if online is None:

@@ -26,9 +26,9 @@ def _run(drive, out, *extra):
 def test_online_run_writes_the_offline_map_of_the_same_scans_and_each_scans_times(case1_drive, tmp_path):
     online = _run(case1_drive, tmp_path / "online", "--online", 7)
     assert online.exit_code == 0, online.output
-    offline = _run(case1_drive, tmp_path / "offline", "--method", "proposed", "--set", "refinement.method=none")
+    offline = _run(case1_drive, tmp_path / "offline", "--method", "proposed", "--set", "refinement.method=fixed_lag")
     assert offline.exit_code == 0, offline.output
-    for name in ("segments.csv", "fused_proposed.csv", "trajectory.csv"):
+    for name in ("segments.csv", "fused_proposed.csv", "trajectory.csv", "trajectory_refined.csv", "pose_corrections.csv"):
         assert (tmp_path / "online" / name).read_bytes() == (tmp_path / "offline" / name).read_bytes(), name
     rows = list(csv.DictReader(open(tmp_path / "online" / "online.csv")))
     assert [int(r["frame"]) for r in rows] == list(range(40))
@@ -36,11 +36,12 @@ def test_online_run_writes_the_offline_map_of_the_same_scans_and_each_scans_time
     assert made == [6, 13, 20, 27, 34, 39]                          # every 7th scan, and the last
     fused = sum(1 for _ in open(tmp_path / "online" / "fused_proposed.csv")) - 1
     assert int(rows[-1]["features"]) == fused > 0
-    assert all(float(r["extract_ms"]) > 0 and float(r["link_ms"]) >= 0 for r in rows)
+    assert all(float(r["extract_ms"]) > 0 and float(r["link_ms"]) >= 0 and float(r["refine_ms"]) >= 0 for r in rows)
     metrics = read_run_metrics(tmp_path / "online" / "metrics.json")
     assert metrics.online.every == 7 and metrics.online.maps == 6 and metrics.timings_s["online_link_per_scan_median"] >= 0
     assert metrics.scans.extracted_now == 40 and metrics.scans.from_cache == 0     # no cache: each scan's real cost
-    assert list(metrics.methods) == ["proposed"] and metrics.refinement.method == "none"
+    assert list(metrics.methods) == ["proposed"] and metrics.refinement.method == "fixed_lag"
+    assert metrics.refinement.applied is False                     # exact poses: kept as they were
     assert "online: 40 scans one at a time" in online.output
 
 
@@ -65,12 +66,13 @@ def test_online_refuses_what_it_cannot_do_in_one_line(case1_drive, tmp_path):
     assert res.output.strip().splitlines()[-1].startswith("featmap: error: --online fuses one scan at a time with proposed only")
     res = _run(case1_drive, tmp_path / "o", "--online", 5, "--set", "refinement.method=pose_graph")
     assert res.exit_code == 2
-    assert res.output.strip().splitlines()[-1] == ("featmap: error: --online uses the source's poses as they come, but --set "
-                                                   "asks for refinement.method=pose_graph (it needs the whole drive): leave it out")
+    assert res.output.strip().splitlines()[-1] == (
+        "featmap: error: --online corrects the poses causally (refinement.method=fixed_lag) or not at all (none), "
+        "but --set asks for refinement.method=pose_graph (it needs the whole drive)")
     res = _run(case1_drive, tmp_path / "o", "--online", 0)
     assert res.exit_code == 2 and "featmap: error:" in res.output and "--online" in res.output
-    cfg = load_config(None, [])                                     # the library: refinement must be off
-    with pytest.raises(ConfigError, match="refinement.method=none"):
+    cfg = load_config(None, [])                                     # the library: refinement must be causal or off
+    with pytest.raises(ConfigError, match="refinement.method=fixed_lag"):
         MappingPipeline(cfg, ["proposed"], SegmentStore(None), online_every=5)
 
 
