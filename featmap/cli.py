@@ -206,12 +206,12 @@ def run(
         from featmap.pipeline.online import ONLINE_REFINEMENT
 
         asked = apply_overrides({}, overrides, FeatmapConfig).get("refinement", {}).get("method")
-        if asked is None:
-            overrides.append(f"refinement.method={ONLINE_REFINEMENT[0]}")
-        elif asked not in ONLINE_REFINEMENT:
+        if asked is not None and asked not in ONLINE_REFINEMENT:
             _fail(f"--online corrects the poses causally (refinement.method=fixed_lag) or not at all (none), but --set "
                   f"asks for refinement.method={asked} (it needs the whole drive)")
     cfg = load_config(config or preset, overrides)
+    if online is not None and cfg.refinement.method not in ONLINE_REFINEMENT:  # a whole-drive method: the causal one
+        cfg = load_config(config or preset, overrides + [f"refinement.method={ONLINE_REFINEMENT[0]}"])
     if online is not None and cfg.refinement.method == "fixed_lag":
         reporter.info(f"--online: poses corrected causally (fixed_lag); each scan joins the map "
                       f"{cfg.refinement.fixed_lag.lag_scans} scans after it came")

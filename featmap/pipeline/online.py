@@ -179,14 +179,15 @@ def map_online(source: ScanSource, config: FeatmapConfig, every: int, reporter: 
             stamps.append(float(scan.timestamp))
             rows.append((frame, len(segments), t1 - t0, t2 - t1, t3 - t2, fused_s, features))
             advance(1)
-    if rows and not np.isfinite(rows[-1][5]):          # the last scans were unreadable: the map of what was read
+    if rows and (waiting or not np.isfinite(rows[-1][5])):   # the last scans were unreadable: the map of what was read
         t2 = time.perf_counter()
         decided = refiner.finish() if refiner is not None else []
         t3 = time.perf_counter()
         link(decided)
+        t4 = time.perf_counter()
         result = online.fused()
         frame, count, extract_s, refine_s, link_s = rows[-1][:5]
-        rows[-1] = (frame, count, extract_s, refine_s + t3 - t2, link_s, time.perf_counter() - t3, len(result))
+        rows[-1] = (frame, count, extract_s, refine_s + t3 - t2, link_s + t4 - t3, time.perf_counter() - t4, len(result))
     columns = list(zip(*rows)) if rows else [()] * 7
     out.poses = np.array(poses) if poses else np.zeros((0, 4, 4))
     corrections = refiner.corrections if refiner is not None else np.zeros((len(out.frames), 3))

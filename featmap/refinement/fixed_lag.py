@@ -31,13 +31,14 @@ world frame, metres and radians.
 from __future__ import annotations
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 from threadpoolctl import threadpool_limits
 
 from featmap.refinement.base import (RefinementInput, RefinementMethod, RefinementResult, apply_corrections,
                                      correct_segments)
 from featmap.refinement.matching import Matches, MatchCandidates, scan_pairs, segment_matches
-from featmap.refinement.terms import FIXED_SIGMA, AlignmentConfig, Gates, correction_size, normal_equations
+from featmap.refinement.terms import (FIXED_SIGMA, AlignmentConfig, Gates, consistency, correction_size,
+                                     normal_equations)
 
 WINDOW_DAMPING = 1e-9
 """Added to the normal equations' diagonal (keeps a scan that nothing constrains where it is)."""
@@ -59,6 +60,13 @@ class FixedLagConfig(AlignmentConfig):
     solve_every: int = Field(10, ge=1, description="solve the problem after every this many new scans")
     context_scans: int = Field(20, ge=0, description="this many decided scans stay in the problem (matched to the newer ones) before they are marginalised")
     pair_radius_m: float = Field(40.0, gt=0, description="scans whose sensors were farther apart are not compared")
+
+    @model_validator(mode="after")
+    def _solved_before_decided(self):
+        if self.lag_scans < self.solve_every:
+            raise ValueError(f"lag_scans ({self.lag_scans}) must be at least solve_every ({self.solve_every}): "
+                             "otherwise scans are decided before any solve has seen them")
+        return self
 
 
 class FixedLagRefiner:
@@ -96,6 +104,7 @@ class FixedLagRefiner:
         self.applied = 0                             # ... whose solution was kept
         self.matches = 0                             # segment pairs matched in the last solve
         self._agreements: list[tuple[float, float]] = []   # per solve: mean mismatch before, after (metres)
+        self._solved_at = 0                          # how many scans there were at the last solve
         self._input_pairs: dict[tuple[int, int], tuple[float, int]] = {}   # scan pair -> (sum |residual|, count)
 
     def __len__(self) -> int:
@@ -140,7 +149,7 @@ class FixedLagRefiner:
 
     def finish(self) -> list[int]:
         """Decide every scan left (the end of the drive): solve once more, then fix them all."""
-        if self.decided < len(self):
+        if self.decided < len(self) and self._solved_at != len(self):
             self._solve()
         return self._decide(len(self))
 
@@ -174,10 +183,10 @@ class FixedLagRefiner:
                                np.array(self._poses[first:]), np.array(self._stamps[first:]))
 
     def _terms(self, inp: RefinementInput, c: np.ndarray, m: Matches, gate: float, first: int,
-               prior: bool = True) -> tuple[np.ndarray, np.ndarray]:
+               prior: bool = True, time_steps: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Dense (H, g) of every term over the scans ``first..`` of ``inp`` at ``c`` (see terms.py), with
         the marginal prior (``prior``) and, for the drive's first scan without an absolute prior, its hold."""
-        H, g = normal_equations(inp, c, m, gate, self._terms_config)
+        H, g = normal_equations(inp, c, m, gate, self._terms_config, time_steps)
         H = H.toarray()
         if self._hold_first and first == 0:
             held = self._hold_first
@@ -191,7 +200,7 @@ class FixedLagRefiner:
         return H, g
 
     def _input_agreement(self, inp: RefinementInput, pairs: np.ndarray, first: int) -> float:
-        """:func:`_agreement` of the input poses over ``pairs`` (local to ``inp``, whose scan 0 is ``first``):
+        """:func:`~featmap.refinement.terms.consistency` of the input poses over ``pairs`` (local to ``inp``, whose scan 0 is ``first``):
         a pair's matches at the input poses never change, so each pair is matched once and remembered
         (until both its scans have left the problem)."""
         cfg = self.config
@@ -213,7 +222,7 @@ class FixedLagRefiner:
         count = sum(self._input_pairs[k][1] for k in keys)
         for key in [k for k in self._input_pairs if k[1] < first]:   # both scans have left the problem
             del self._input_pairs[key]
-        return total / count if count else float("inf")
+        return total / count if count else float("nan")
 
     def _solve(self) -> None:
         """Solve the scans of the problem jointly, keep the solution if it helps, then marginalise the
@@ -240,15 +249,20 @@ class FixedLagRefiner:
                                     candidates=candidates)
                 H, g = self._terms(inp, c, m, gate, first)
                 c -= np.linalg.solve(H + np.eye(3 * F) * WINDOW_DAMPING, g).reshape(F, 3)
-        self._estimate[first:] = c
         self.matches = m.n_pairs
         # Keep the solution only when the scans agree better than with the input poses (exact poses stay).
         undecided = slice(self.decided - first, F)
         before = self._input_agreement(inp, pairs, first)
-        after = _agreement(inp, c, pairs, cfg, candidates)
+        after = consistency(inp, c, pairs, cfg, candidates)
         largest = float(correction_size(c[undecided]).max()) if F > self.decided - first else 0.0
         self._applied = bool(np.isfinite(after) and before >= cfg.min_improvement * after
                              and largest >= cfg.min_correction_m)
+        if not self._applied:
+            # The scans decided until the next solve keep their input poses; so does the estimate the next
+            # solve starts from (the decided scans stay where they were decided): no jump when it is kept.
+            c = self._c[first:].copy()
+        self._estimate[first:] = c
+        self._solved_at = n
         self.solves += 1
         self.applied += int(self._applied)
         self._agreements.append((before, after))
@@ -269,7 +283,7 @@ class FixedLagRefiner:
         rest = Matches(m.point[stay], m.source[stay] - leave, m.target[stay] - leave, m.base[stay], m.normal[stay],
                        m.weight[stay], len(stay) // 2)
         H_rest, g_rest = self._terms(inp.subset(np.arange(leave, inp.n_scans)), c[leave:], rest, gate,
-                                     first + leave, prior=False)
+                                     first + leave, prior=False, time_steps=inp.time_steps()[leave:])
         k = 3 * leave
         H = H_all.copy()
         H[k:, k:] -= H_rest
@@ -280,24 +294,13 @@ class FixedLagRefiner:
         H_prior = H[k:, k:] - H[k:, :k] @ solve[:, :-1]
         g_prior = g[k:] - H[k:, :k] @ solve[:, -1]
         # Only the scans tied to the ones that leave carry the prior (the rest of it is zero).
-        tied = np.flatnonzero(np.abs(H_prior).reshape(-1, 3, H_prior.shape[1]).sum(axis=(1, 2)) > 0)
+        weight = np.abs(H_prior).reshape(-1, 3, H_prior.shape[1]).sum(axis=(1, 2))
+        tied = np.flatnonzero(weight > 1e-12 * max(float(weight.max(initial=0.0)), 1e-300))
         span = int(tied.max()) + 1 if len(tied) else 0
         H_prior, g_prior = H_prior[:3 * span, :3 * span], g_prior[:3 * span]
         H_prior = 0.5 * (H_prior + H_prior.T)
         self._prior = (H_prior, g_prior, c[leave:leave + span].copy()) if span else None
         self.first = first + leave
-
-
-def _agreement(inp: RefinementInput, corrections: np.ndarray, pairs: np.ndarray, config: AlignmentConfig,
-               candidates: MatchCandidates | None = None) -> float:
-    """Mean distance between matched segments of ``pairs`` after ``corrections`` (inf when nothing matches;
-    ``candidates``: see :func:`featmap.refinement.matching.segment_matches`)."""
-    order = np.argsort(inp.scan, kind="stable")
-    scan = inp.scan[order]
-    current = correct_segments(inp.segments[order], scan, inp.anchors, corrections)
-    m = segment_matches(current, scan, pairs, config.gates_m[0], config.angle_deg, config.margin_m, config.min_overlap_m,
-                        candidates=candidates)
-    return float(np.mean(np.abs(m.residuals()))) if len(m) else float("inf")
 
 
 def refine_fixed_lag(inp: RefinementInput, config: FixedLagConfig = FixedLagConfig()) -> RefinementResult:

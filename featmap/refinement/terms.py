@@ -115,9 +115,12 @@ def _match_rows(m: Matches, anchors: np.ndarray, config: AlignmentConfig, scale:
 
 
 def normal_equations(inp: RefinementInput, c: np.ndarray, m: Matches, gate: float,
-                     config: AlignmentConfig) -> tuple[sparse.csc_matrix, np.ndarray]:
+                     config: AlignmentConfig, time_steps: np.ndarray | None = None) -> tuple[sparse.csc_matrix, np.ndarray]:
     """(H (3F, 3F), g (3F,)) of the problem linearised at corrections ``c`` (F, 3), with the matches ``m``
-    found within ``gate``: the update ``dc`` solves ``H dc = -g`` (:func:`solve_normal_equations`)."""
+    found within ``gate``: the update ``dc`` solves ``H dc = -g`` (:func:`solve_normal_equations`).
+    ``time_steps``: (F - 1,) seconds between the scans for the motion prior (default
+    ``inp.time_steps()``; a part of a larger problem passes the larger problem's, whose floor for
+    repeated timestamps may differ)."""
     F = inp.n_scans
     anchors = inp.anchors + c[:, :2]
     scale = max(config.robust_scale_m, config.robust_gate_fraction * gate)
@@ -151,7 +154,7 @@ def normal_equations(inp: RefinementInput, c: np.ndarray, m: Matches, gate: floa
         turned = np.column_stack([cos * step[:, 0] - sin * step[:, 1], sin * step[:, 0] + cos * step[:, 1]])
         r_t = c[1:, :2] - c[:-1, :2] - (turned - step)
         r_th = c[1:, 2] - c[:-1, 2]
-        dt2 = inp.time_steps()
+        dt2 = inp.time_steps() if time_steps is None else np.asarray(time_steps, float)
         k = np.arange(F - 1)
         base = n_rows + 3 * k
         d_turn = _perp(turned)                              # d(turned)/d(theta_k)

@@ -160,3 +160,37 @@ def test_the_online_loop_of_docs_online_md_maps_every_scan_once(long_hall):
     offline = fuse("proposed", np.concatenate(segments), np.repeat(np.arange(len(segments)), [len(x) for x in segments]),
                    rms=np.concatenate([world_fields(s, pose_matrix(p))["rms"] for s, p in zip(scans, given)]))
     assert np.array_equal(online.fused().segments, offline.segments)
+
+
+def test_lag_shorter_than_the_solve_interval_is_refused_in_one_line():
+    from pydantic import ValidationError
+
+    with pytest.raises(ValidationError, match=r"lag_scans \(2\) must be at least solve_every \(30\)"):
+        FixedLagConfig(lag_scans=2, solve_every=30)
+
+
+def test_the_end_of_the_drive_does_not_solve_the_same_scans_twice(long_hall):
+    poses, scans = long_hall
+    refiner = FixedLagRefiner(FixedLagConfig(lag_scans=6, solve_every=6, context_scans=4))
+    _feed(refiner, scans[:24], poses[:24])
+    assert refiner.solves == 4
+    refiner.finish()
+    assert refiner.solves == 4 and refiner.decided == 24
+
+
+def test_the_marginal_prior_stays_a_gaussian_with_repeated_and_uneven_timestamps(long_hall):
+    """A repeated timestamp (floored to a tenth of the median step) and uneven steps: the motion terms the
+    prior takes are those of the scans that left, so it stays symmetric positive semi-definite."""
+    poses, scans = long_hall
+    stamps = np.cumsum(np.where(np.arange(len(poses)) < 20, 0.1, 0.5))
+    stamps[25] = stamps[24]                                        # a repeated timestamp
+    given = poses + oxts_drift(np.random.default_rng(2), stamps, (0.2, 0.4), 5.0)
+    refiner = FixedLagRefiner(SMALL)
+    for k, (s, p) in enumerate(zip(scans, given)):
+        T = pose_matrix(p)
+        refiner.add_scan(segments_to_world(s, T), T, float(stamps[k]))
+        if refiner._prior is not None:
+            H = refiner._prior[0]
+            assert np.allclose(H, H.T)
+            assert np.linalg.eigvalsh(H).min() >= -1e-9 * np.abs(H).max()
+    assert refiner.first > 20
