@@ -11,8 +11,7 @@ involves them (their priors, the motion prior to the next scan, their matches, t
 carried) is folded into a Gaussian prior on the scans that stay (a Schur complement at the current
 estimate). So what the old scans said about where the map lies in the world is kept, and a solve costs
 the same on the first kilometre and the hundredth. (Holding the decided scans fixed instead keeps the
-map self-consistent but lets it turn with the first scans' heading error: on the pose-noise drive of
-docs/online.md, precision 0.73 and recall 0.80 against 1.000 and 0.998.)
+map self-consistent but lets it turn with the first scans' heading error.)
 
 Only scans near in time are compared, so a revisit minutes later is not tied in (no loop closure online;
 the offline ``pose_graph`` does that). A decision uses the information so far: a scan decided early in
@@ -20,8 +19,9 @@ a drive with a weak absolute prior may sit a few centimetres from where a later 
 
 As offline, a solve is kept only when it makes its scans agree ``min_improvement`` times better than the
 input poses do and moves some scan by ``min_correction_m`` (the test of
-:func:`featmap.refinement.terms.keep_if_better`); otherwise the scans decided after it keep their input
-poses. So scans whose poses already agree (exact poses) keep them exactly.
+:func:`featmap.refinement.terms.keep_if_better`); otherwise the scans decided until the next solve keep
+their input poses, and the next solve starts from the poses as decided. So scans whose poses already
+agree (exact poses) keep them exactly.
 
 :func:`refine_fixed_lag` feeds a whole drive to the smoother in time order: the registry's
 ``refinement.method: fixed_lag`` gives offline exactly what the online mapper gets. Numpy in, numpy out;
@@ -54,9 +54,9 @@ UNCONSTRAINED = 1e6
 class FixedLagConfig(AlignmentConfig):
     """Causal fixed-lag pose refinement for online mapping (world frame, metres; the terms of pose_graph)."""
 
-    gates_m: Gates = Field([0.5, 0.12], min_length=1, description="match distance gate of each round, coarse to fine (each window starts near its solution: the scans before it are solved, and a new scan starts from the last one's correction)")
+    gates_m: Gates = Field([0.5, 0.12], min_length=1, description="match distance gate of each round, coarse to fine (each solve starts near its solution: the older scans are solved, and a new scan starts from the last one's correction)")
     iterations_per_gate: int = Field(1, ge=1, description="Gauss-Newton iterations (each re-matching) per gate")
-    lag_scans: int = Field(20, ge=1, description="a scan's correction is decided once this many newer scans have come (the map lags this many scans behind)")
+    lag_scans: int = Field(40, ge=1, description="a scan's correction is decided once this many newer scans have come (the map lags this many scans behind)")
     solve_every: int = Field(10, ge=1, description="solve the problem after every this many new scans")
     context_scans: int = Field(20, ge=0, description="this many decided scans stay in the problem (matched to the newer ones) before they are marginalised")
     pair_radius_m: float = Field(40.0, gt=0, description="scans whose sensors were farther apart are not compared")
@@ -73,11 +73,10 @@ class FixedLagRefiner:
     """The smoother's state between scans; see the module docstring.
 
     The problem solved holds the newest scans (``lag_scans + solve_every + context_scans`` after each solve,
-    ``solve_every`` more before the next); the
-    scans that leave it are *marginalised*: every term that involves them (their priors, the motion prior
-    to the next scan, their matches, the earlier marginal) is folded into a Gaussian prior on the scans
-    that stay (a Schur complement), so what they told about the map's place in the world is kept while
-    the cost of a solve stays bounded.
+    ``solve_every`` more before the next); the scans that leave it are *marginalised*: every term that
+    involves them (their priors, the motion prior to the next scan, their matches, the earlier marginal)
+    is folded into a Gaussian prior on the scans that stay (a Schur complement), so what they told about
+    the map's place in the world is kept while the cost of a solve stays bounded.
 
     Args:
         config: its settings (a ``FixedLagConfig``; the slam prior already applied if wanted).
