@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/bench_online.py                 # all four tables (about 7 minutes)
     .venv/bin/python benchmarks/bench_online.py --docs          # and write them into docs/online.md
     .venv/bin/python benchmarks/bench_online.py --parts revisits --revisits 1 5 20 50 100
+    .venv/bin/python benchmarks/bench_online.py --parts heldout --docs   # not in "all": about 40 minutes
 
 Parts:
 - ``revisits``: a street grid of 100 walls (featmap.simulation.segments.city_walls) driven K times
@@ -17,12 +18,22 @@ Parts:
   8 m walls per scan): per-scan linking time over the first, middle and last thousand scans (does it grow
   with the map's area?).
 - ``noise``: the default drive simulated with 0.10 m / 0.2 deg pose noise (``scripts/reproduce_paper.py``'s
-  ``residential_pose_noise``), mapped online and offline without and with pose refinement: what mapping
-  online without pose correction costs in accuracy.
-- ``drive``: ``featmap run --online 25`` on the default simulated drive (plots off), ``--repeats``
-  whole processes: per-scan extraction and linking (medians over the scans, from metrics.json; then the
-  median over the processes), the map's time, end-to-end scans per second, and whether its map is byte
-  for byte the offline one (``featmap run --method proposed --set refinement.method=none``).
+  ``residential_pose_noise``), mapped online with the causal pose correction (``fixed_lag``, the default of
+  ``--online``) and without, and offline without refinement and with the pose graph: what mapping online
+  costs in accuracy, and the pose correction's time per scan.
+- ``heldout``: the causal pose correction against the offline pose graph on drives it was never tuned on:
+  ``benchmarks/bench_pose_noise.py --split heldout --parts sim carmen --methods proposed`` (the ten held-out
+  procedural worlds and the held-out CARMEN log fhw, 0.1 m / 0.2 deg and 0.3 m / 0.5 deg drift, three
+  noise seeds each) once with ``--set refinement.method=fixed_lag`` and once with the default pose graph:
+  medians over worlds and seeds, the worst world's median, and the trajectory error; for fhw the
+  truth-free map metric against its corrected poses. (The fixed-lag settings were chosen on the
+  ``noise`` drive above, for speed: accuracy barely moved with them.)
+- ``drive``: ``featmap run --online 25`` on the default simulated drive (plots off), with the causal pose
+  correction (the default) and with ``--set refinement.method=none``, ``--repeats`` whole processes each,
+  interleaved: per-scan extraction and linking (medians over the scans, from metrics.json; then the
+  median over the processes), the pose correction's mean time per scan, the map's time, end-to-end scans
+  per second, and whether the map is byte for byte the offline one with the same refinement (``featmap
+  run --method proposed --set refinement.method=...``; the poses are exact there, so fixed_lag keeps them).
 
 A shared 2-core machine: times are noisy; the medians are what to quote.
 """
@@ -131,34 +142,47 @@ def part_revisits(revisits: list[int], repeats: int) -> tuple[list[str], list[li
 
 
 def part_drive(repeats: int) -> tuple[list[str], list[list[str]]]:
+    """``featmap run --online 25`` on the default drive with the causal pose correction (the default) and
+    without, ``repeats`` processes each, interleaved; each map compared with the offline run's of the same
+    refinement."""
     featmap = [sys.executable, "-m", "featmap.cli"]
     quiet = ["--set", "output.plots=false", "--set", "output.html=false", "--set", "output.kml=false"]
+    variants = {"residential (default: fixed_lag)": "fixed_lag", "residential, refinement none": "none"}
+    stats: dict[str, list[dict]] = {name: [] for name in variants}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        subprocess.run(featmap + ["run", "--method", "proposed", "--set", "refinement.method=none", *quiet,
-                                  "--out", str(tmp / "offline")], check=True, cwd=ROOT, capture_output=True)
-        stats = []
+        for method in variants.values():
+            subprocess.run(featmap + ["run", "--method", "proposed", "--set", f"refinement.method={method}", *quiet,
+                                      "--out", str(tmp / f"offline_{method}")], check=True, cwd=ROOT, capture_output=True)
         for k in range(repeats):
-            out = tmp / f"online{k}"
-            t0 = time.perf_counter()
-            subprocess.run(featmap + ["run", "--online", "25", *quiet, "--out", str(out)], check=True, cwd=ROOT,
-                           capture_output=True)
-            wall = time.perf_counter() - t0
-            metrics = json.loads((out / "metrics.json").read_text())
-            t = metrics["timings_s"]
-            stats.append({"scans": metrics["scans"]["processed"], "extract": t["online_extraction_per_scan_median"],
-                          "link": t["online_link_per_scan_median"], "link_max": t["online_link_per_scan_max"],
-                          "map": t["online_map_median"], "map_max": t["online_map_max"], "total": t["total"], "wall": wall,
-                          "same": (out / "fused_proposed.csv").read_bytes() == (tmp / "offline" / "fused_proposed.csv").read_bytes(),
-                          "features": metrics["methods"]["proposed"]["count"]})
-            print(stats[-1], flush=True)
-    med = {key: statistics.median(s[key] for s in stats) for key in stats[0] if key not in ("same",)}
-    header = ["drive", "scans", "extraction ms per scan", "linking ms per scan (median / max)",
-              "map every 25 scans ms (median / max)", "scans/s (run total; process)", "features", "same map as offline"]
-    rows = [["residential (default)", str(int(med["scans"])), f"{1e3 * med['extract']:.1f}",
-             f"{1e3 * med['link']:.2f} / {1e3 * med['link_max']:.1f}", f"{1e3 * med['map']:.0f} / {1e3 * med['map_max']:.0f}",
-             f"{med['scans'] / med['total']:.1f}; {med['scans'] / med['wall']:.1f}", str(int(med["features"])),
-             "yes" if all(s["same"] for s in stats) else "NO"]]
+            for name, method in variants.items():
+                out = tmp / f"online_{method}{k}"
+                extra = [] if method == "fixed_lag" else ["--set", f"refinement.method={method}"]
+                t0 = time.perf_counter()
+                subprocess.run(featmap + ["run", "--online", "25", *extra, *quiet, "--out", str(out)], check=True,
+                               cwd=ROOT, capture_output=True)
+                wall = time.perf_counter() - t0
+                metrics = json.loads((out / "metrics.json").read_text())
+                t = metrics["timings_s"]
+                offline = tmp / f"offline_{method}" / "fused_proposed.csv"
+                stats[name].append({"scans": metrics["scans"]["processed"], "extract": t["online_extraction_per_scan_median"],
+                                    "refine": t["refinement"], "link": t["online_link_per_scan_median"],
+                                    "link_max": t["online_link_per_scan_max"], "map": t["online_map_median"],
+                                    "map_max": t["online_map_max"], "total": t["total"], "wall": wall,
+                                    "same": (out / "fused_proposed.csv").read_bytes() == offline.read_bytes(),
+                                    "features": metrics["methods"]["proposed"]["count"]})
+                print(name, stats[name][-1], flush=True)
+    header = ["drive", "scans", "extraction ms per scan", "pose correction ms per scan (mean)",
+              "linking ms per scan (median / max)", "map every 25 scans ms (median / max)", "scans/s (run total; process)",
+              "features", "same map as offline"]
+    rows = []
+    for name, runs in stats.items():
+        med = {key: statistics.median(s[key] for s in runs) for key in runs[0] if key not in ("same",)}
+        rows.append([name, str(int(med["scans"])), f"{1e3 * med['extract']:.1f}", f"{1e3 * med['refine'] / med['scans']:.1f}",
+                     f"{1e3 * med['link']:.2f} / {1e3 * med['link_max']:.1f}",
+                     f"{1e3 * med['map']:.0f} / {1e3 * med['map_max']:.0f}",
+                     f"{med['scans'] / med['total']:.1f}; {med['scans'] / med['wall']:.1f}", str(int(med["features"])),
+                     "yes" if all(s["same"] for s in runs) else "NO"])
     return header, rows
 
 
@@ -171,7 +195,8 @@ def part_noise() -> tuple[list[str], list[list[str]]]:
     root = drive_for("residential_pose_noise")
     featmap = [sys.executable, "-m", "featmap.cli", "run", "--drive", DRIVE, "--data-dir", str(root)]
     quiet = ["--set", "output.plots=false", "--set", "output.html=false", "--set", "output.kml=false"]
-    runs = {"online (--online 25)": ["--online", "25"],
+    runs = {"online (--online 25: fixed_lag)": ["--online", "25"],
+            "online, refinement none": ["--online", "25", "--set", "refinement.method=none"],
             "offline, refinement none": ["--method", "proposed", "--set", "refinement.method=none"],
             "offline, default (pose_graph)": ["--method", "proposed"]}
     rows = []
@@ -181,12 +206,72 @@ def part_noise() -> tuple[list[str], list[list[str]]]:
             subprocess.run(featmap + [*extra, *quiet, "--out", str(out)], check=True, cwd=ROOT, capture_output=True)
             truth = json.loads((out / "metrics.json").read_text())["methods"]["proposed"]
             score = truth["scores"]["truth"]
+            metrics = json.loads((out / "metrics.json").read_text())
+            refine_ms = metrics["timings_s"].get("online_refinement_per_scan_median")
+            refine_ms = f"{1e3 * refine_ms:.1f}" if refine_ms is not None else "-"
             rows.append([name, str(truth["count"]), f"{score['precision']:.3f}", f"{score['recall']:.3f}",
-                         f"{score['redundancy']:.2f}", f"{score['offset_cm']:.1f}", f"{score['corner_err_cm']:.1f}"])
+                         f"{score['redundancy']:.2f}", f"{score['offset_cm']:.1f}", f"{score['corner_err_cm']:.1f}",
+                         refine_ms, f"{metrics['timings_s']['refinement']:.1f}"])
             print(" | ".join(rows[-1]), flush=True)
     header = ["residential_pose_noise (0.10 m / 0.2 deg)", "features", "precision", "recall", "redundancy",
-              "offset cm", "corner cm"]
+              "offset cm", "corner cm", "refinement ms per scan (median)", "refinement s (total)"]
     return header, rows
+
+
+def part_heldout() -> tuple[list[str], list[list[str]], list[str], list[list[str]]]:
+    """The held-out pose-noise drives with ``fixed_lag`` and with ``pose_graph`` (see the module doc)."""
+    levels = ["0.1,0.2", "0.3,0.5"]
+    results = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in ("fixed_lag", "pose_graph"):
+            out = Path(tmp) / f"{name}.json"
+            subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_pose_noise.py"), "--split", "heldout",
+                            "--parts", "sim", "carmen", "--methods", "proposed", "--levels", *levels,
+                            "--set", f"refinement.method={name}", "--json", str(out)], check=True, cwd=ROOT)
+            results[name] = json.loads(out.read_text())
+
+    def med(values):
+        values = [v for v in values if v is not None and v == v]
+        return statistics.median(values) if values else float("nan")
+
+    header = ["drift", "poses", "precision (median / worst world)", "recall (median / worst world)",
+              "offset cm", "corner cm", "trajectory error m", "refinement s per drive"]
+    rows = []
+    for level in ([0.1, 0.2], [0.3, 0.5]):
+        first = True
+        for name, label in (("fixed_lag", "before (drifting)"), ("fixed_lag", "fixed_lag (online)"),
+                            ("pose_graph", "pose_graph (offline)")):
+            sel = [r for r in results[name]["sim"] if r["level"] == level]
+            state = "before" if label.startswith("before") else "after"
+            if state == "before" and not first:
+                continue
+            first = False
+            worlds = sorted({r["world"] for r in sel})
+            per_world = {key: [med([r[state]["proposed"][key] for r in sel if r["world"] == w]) for w in worlds]
+                         for key in ("precision", "recall")}
+            score = {key: med([r[state]["proposed"][key] for r in sel]) for key in ("precision", "recall", "offset_cm",
+                                                                                      "corner_err_cm")}
+            traj = med([r["traj_before" if state == "before" else "traj_after"][0] for r in sel])
+            seconds = "-" if state == "before" else f"{med([r['refinement']['seconds'] for r in sel]):.1f}"
+            rows.append([f"{level[0]} m / {level[1]} deg", label,
+                         f"{score['precision']:.3f} / {min(per_world['precision']):.3f}",
+                         f"{score['recall']:.3f} / {min(per_world['recall']):.3f}", f"{score['offset_cm']:.1f}",
+                         f"{score['corner_err_cm']:.1f}", f"{traj:.3f}", seconds])
+            print(" | ".join(rows[-1]), flush=True)
+    carmen_header = ["fhw (drift on its corrected poses)", "poses", "precision", "recall", "redundancy",
+                     "trajectory error m"]
+    carmen_rows = []
+    for level in ([0.1, 0.2], [0.3, 0.5]):
+        for name, label, state in (("fixed_lag", "before (drifting)", "before"), ("fixed_lag", "fixed_lag (online)", "after"),
+                                   ("pose_graph", "pose_graph (offline)", "after")):
+            sel = [r for r in results[name].get("carmen", []) if r["level"] == level]
+            if not sel:
+                continue
+            m = {key: med([r[state]["proposed"][key] for r in sel]) for key in ("precision", "recall", "redundancy")}
+            traj = med([r["traj_before" if state == "before" else "traj_after"][0] for r in sel])
+            carmen_rows.append([f"{level[0]} m / {level[1]} deg", label, f"{m['precision']:.3f}", f"{m['recall']:.3f}",
+                                f"{m['redundancy']:.3f}", f"{traj:.3f}"])
+    return header, rows, carmen_header, carmen_rows
 
 
 def markdown(header: list[str], rows: list[list[str]]) -> str:
@@ -197,7 +282,7 @@ def markdown(header: list[str], rows: list[list[str]]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--parts", nargs="+", default=["revisits", "corridor", "drive", "noise"],
-                        choices=["revisits", "corridor", "drive", "noise"])
+                        choices=["revisits", "corridor", "drive", "noise", "heldout"])
     parser.add_argument("--corridor-scans", type=int, default=30_000)
     parser.add_argument("--revisits", type=int, nargs="+", default=[1, 5, 20, 50])
     parser.add_argument("--repeats", type=int, default=3)
@@ -218,13 +303,22 @@ def main() -> None:
     if "drive" in args.parts:
         header, rows = part_drive(args.repeats)
         tables["online_drive"] = (f"{command} ({stamp}); `featmap run --online 25`, medians of {args.repeats} "
-                                  "processes:\n\n" + markdown(header, rows))
+                                  "processes each:\n\n" + markdown(header, rows))
     if "noise" in args.parts:
         header, rows = part_noise()
         tables["online_noise"] = (f"{command} ({stamp}); one run each, scored against the simulator's truth:\n\n"
                                   + markdown(header, rows))
     for body in tables.values():
         print("\n" + body)
+    if "heldout" in args.parts:
+        header, rows, carmen_header, carmen_rows = part_heldout()
+        body = (f"{command} ({stamp}); `bench_pose_noise.py --split heldout --parts sim carmen --methods proposed` "
+                "with each refinement, medians over 10 held-out worlds x 3 noise seeds (worst world: its median "
+                "over the seeds), scored against the simulator's truth:\n\n" + markdown(header, rows))
+        if carmen_rows:
+            body += ("\n\nThe held-out CARMEN log fhw, drift added to its corrected poses, truth-free metric "
+                     "(medians over 3 noise seeds):\n\n" + markdown(carmen_header, carmen_rows))
+        tables["online_heldout"] = body
     if args.docs:
         sys.path.insert(0, str(ROOT / "scripts"))
         from doc_blocks import replace_block
