@@ -199,27 +199,27 @@ class FixedLagRefiner:
         return H, g
 
     def _input_agreement(self, inp: RefinementInput, pairs: np.ndarray, first: int) -> float:
-        """:func:`~featmap.refinement.terms.consistency` of the input poses over ``pairs`` (local to ``inp``, whose scan 0 is ``first``):
-        a pair's matches at the input poses never change, so each pair is matched once and remembered
-        (until both its scans have left the problem)."""
+        """:func:`~featmap.refinement.terms.consistency` of the input poses over ``pairs`` (local to ``inp``,
+        whose scan 0 is ``first``): a pair's matches at the input poses never change, so each pair is
+        matched once and remembered (until both its scans have left the problem)."""
         cfg = self.config
         keys = [(first + int(i), first + int(j)) for i, j in pairs]
-        new = np.array([p for p, key in zip(pairs, keys) if key not in self._input_pairs], np.int64).reshape(-1, 2)
-        if len(new):
+        new = [k for k, key in enumerate(keys) if key not in self._input_pairs]
+        if new:
             order = np.argsort(inp.scan, kind="stable")
-            m = segment_matches(inp.segments[order], inp.scan[order], new, cfg.gates_m[0], cfg.angle_deg, cfg.margin_m,
-                                cfg.min_overlap_m)
-            lo, hi = np.minimum(m.source, m.target), np.maximum(m.source, m.target)
+            m = segment_matches(inp.segments[order], inp.scan[order], pairs[new], cfg.gates_m[0], cfg.angle_deg,
+                                cfg.margin_m, cfg.min_overlap_m)
             n = inp.n_scans
-            key, inverse = np.unique(lo * n + hi, return_inverse=True)
-            total = np.bincount(inverse, np.abs(m.residuals()), len(key))
-            count = np.bincount(inverse, minlength=len(key))
-            found = {(first + int(k // n), first + int(k % n)): (float(t), int(c)) for k, t, c in zip(key, total, count)}
-            for i, j in new:
-                self._input_pairs[(first + int(i), first + int(j))] = found.get((first + int(i), first + int(j)), (0.0, 0))
-        total = sum(self._input_pairs[k][0] for k in keys)
-        count = sum(self._input_pairs[k][1] for k in keys)
-        for key in [k for k in self._input_pairs if k[1] < first]:   # both scans have left the problem
+            code, inverse = np.unique(np.minimum(m.source, m.target) * n + np.maximum(m.source, m.target),
+                                      return_inverse=True)
+            total = np.bincount(inverse, np.abs(m.residuals()), len(code))
+            count = np.bincount(inverse, minlength=len(code))
+            found = {(first + int(c // n), first + int(c % n)): (float(t), int(k)) for c, t, k in zip(code, total, count)}
+            for k in new:
+                self._input_pairs[keys[k]] = found.get(keys[k], (0.0, 0))
+        total = sum(self._input_pairs[key][0] for key in keys)
+        count = sum(self._input_pairs[key][1] for key in keys)
+        for key in [key for key in self._input_pairs if key[1] < first]:   # both scans have left the problem
             del self._input_pairs[key]
         return total / count if count else float("nan")
 
