@@ -740,11 +740,13 @@ def merged_reference(inputs: MergedInputs, evaluation=None, cache_dir: str | Pat
 
     The drives' simulator truths united in the merged frame when every drive has one; otherwise, with the
     ``evaluation:`` section given, what a run of its own would be scored against: building footprints
-    (``evaluation.footprints``, when the merged frame has a geo origin), else the truth-free map metric
-    against every drive's scan points (``merged_points``, from the segment cache in ``cache_dir``).
+    (``evaluation.footprints``, when the merged frame has a geo origin), else the truth-free map metric.
+    Both use every drive's scan points (``merged_points``, from the segment cache in ``cache_dir``): the
+    footprints' observation record, the map metric's reference. Without ``cache_dir`` every footprint wall
+    counts as observable and there is no map metric.
 
     Raises:
-        FeatmapError: a drive's scans cannot be read again (moved, changed) for the map metric.
+        FeatmapError: a drive's scans cannot be read again (moved, changed).
     """
     from featmap.evaluation import EvaluationContext, Reference
     from featmap.evaluation.plugins import SimulatorTruth
@@ -759,20 +761,17 @@ def merged_reference(inputs: MergedInputs, evaluation=None, cache_dir: str | Pat
     if evaluation is None:
         return None
     context = EvaluationContext(None, None, inputs.frame, evaluation)
-    found = primary_reference(context)                  # footprints, when the config names them
-    if found is not None or cache_dir is None:
-        return found
-    points = merged_points(inputs, cache_dir)
-    if points is None:
-        return None
-    return primary_reference(replace(context, points=points, raw_segments=inputs.table.segments))
+    found = None if cache_dir is None else merged_points(inputs, cache_dir)
+    if found is not None:           # footprints are observed by them; without footprints they are the reference
+        context = replace(context, points=found[0], point_scans=found[1], raw_segments=inputs.table.segments)
+    return primary_reference(context)
 
 
-def drive_points(run_dir: str | Path, cache_dir: str | Path) -> np.ndarray | None:
-    """(P, 2) the scan points of a batch drive (its extractor's structure points) in its run's local
-    frame, placed with the poses the run fused with (the source's, moved by ``pose_corrections.csv``), or
-    None when its extractor gives none. The scans are read again and their segments taken from the
-    segment cache (extracted again where the cache lacks them).
+def drive_points(run_dir: str | Path, cache_dir: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """(points (P, 2), their frame numbers (P,)): the scan points of a batch drive (its extractor's structure
+    points) in its run's local frame, placed with the poses the run fused with (the source's, moved by
+    ``pose_corrections.csv``), or None when its extractor gives none. The scans are read again and their
+    segments taken from the segment cache (extracted again where the cache lacks them).
 
     Raises:
         FeatmapError: the drive's ``batch.json``, config or pose corrections are unreadable, or its
@@ -803,25 +802,29 @@ def drive_points(run_dir: str | Path, cache_dir: str | Path) -> np.ndarray | Non
             raise InputFileError(corrections_path, f"its frames are not the {len(extraction.frames)} frames of "
                                  f"{spec.location} the run used (the source changed since?)")
         poses = apply_corrections(poses, corrections)
-    return extraction.world_points(poses)
+    points = extraction.world_points(poses)
+    return None if points is None else (points, extraction.world_point_scans())
 
 
-def merged_points(inputs: MergedInputs, cache_dir: str | Path) -> np.ndarray | None:
-    """(P, 2) every drive's scan points (``drive_points``) in the merged frame (aligned as the drives'
-    segments are), or None when a drive has none."""
+def merged_points(inputs: MergedInputs, cache_dir: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """(points (P, 2), merged scan ids (P,)): every drive's scan points (``drive_points``) in the merged
+    frame (aligned as the drives' segments are), with the scan ids of the merged segments (a drive's
+    ``scan_offset`` + frame), or None when a drive has none."""
     from featmap.geo import reproject
 
-    parts = []
+    parts, scans = [], []
     for k, d in enumerate(inputs.drives):
-        points = drive_points(d.run_dir, cache_dir)
-        if points is None:
+        found = drive_points(d.run_dir, cache_dir)
+        if found is None:
             return None
+        points, frames = found
+        scans.append(d.scan_offset + frames)
         if inputs.frame is not None and d.geo_frame is not None:
             points = reproject(points, d.geo_frame.frame(), inputs.frame)
         if inputs.alignment is not None:
             points = inputs.alignment.points(points, k)
         parts.append(points)
-    return np.concatenate(parts) if parts else None
+    return (np.concatenate(parts), np.concatenate(scans)) if parts else None
 
 
 def drive_provenance(labels: np.ndarray, drive: np.ndarray, n_features: int) -> list[list[int]]:
@@ -845,9 +848,11 @@ def merge_task(run_dirs: list[tuple[str, str]], out: str, methods: tuple[str, ..
     properties), ``map.kml`` and ``map.html`` (a layer per method and per drive's trajectory),
     ``config.yaml`` and ``merged.json`` (frame, drives, counts, scores and what they are against).
     """
+    from featmap.evaluation.references import observation_record
     from featmap.io.atomic import atomic_write_text
     from featmap.io.run_metrics import GeoRecord
     from featmap.io.segments_csv import write_fused_csv, write_segments_csv
+    from featmap.io.sim_truth import FOOTPRINT_WALLS_FILE, write_walls_csv
     from featmap.pipeline.config import config_from_dict
     from featmap.pipeline.fuse import fuse_methods
     from featmap.pipeline.run_folder import RunFolder
@@ -894,6 +899,8 @@ def merge_task(run_dirs: list[tuple[str, str]], out: str, methods: tuple[str, ..
                               scores=_plain(scores), drive_scores=_plain(drive_scores),
                               seconds=round(time.perf_counter() - start, 3))
         write_merged_record(folder.tmp / "merged.json", record)
+        if reference is not None and reference[0].name == "footprints":
+            write_walls_csv(folder.tmp / FOOTPRINT_WALLS_FILE, observation_record(reference[1].data))
         folder.commit()
     return record
 

@@ -401,10 +401,13 @@ def download(
 def evaluate(
     fused: Path = typer.Argument(..., help="fused_<method>.csv (local frame, next to its metrics.json) or .geojson (WGS84)."),
     truth: Path = typer.Option(..., "--truth", "-t", help="Building footprints (.geojson, WGS84) or a simulated drive's truth/ folder."),
-    origin: Optional[str] = typer.Option(None, "--origin", help="LAT,LON of the local frame of a CSV (default: its run's metrics.json)."),
+    origin: Optional[str] = typer.Option(None, "--origin", help="LAT,LON of the local frame to score in (default: the run's metrics.json beside FUSED; needed for a CSV without one)."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Also write the metrics to this JSON file."),
 ):
-    """Score any fused map against ground-truth footprints (the metrics of EVALUATION.md)."""
+    """Score any fused map against ground-truth footprints (the metrics of EVALUATION.md).
+
+    Footprints that the map's run was scored against count what its scans observed of them (the run's
+    footprint_walls.csv); other footprints count every wall, whole (recall is then a lower bound)."""
     import json
 
     from featmap.evaluation.score_files import evaluate_file

@@ -359,7 +359,9 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
     from featmap.datasets.kitti_raw import parse_drive
     from featmap.evaluation import EvaluationContext
     from featmap.evaluation.plugins import Footprints, SimulatorTruth
+    from featmap.evaluation.references import footprints_truth
     from featmap.io.run_metrics import read_run_metrics
+    from featmap.io.sim_truth import FOOTPRINT_WALLS_FILE
     from featmap.io.segments_csv import read_segments_csv
     from featmap.pipeline.extract import extract_source
     from featmap.pipeline.refine import refine_extraction
@@ -371,26 +373,28 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
         meta_path = Path(spec.input).parent / "metrics.json"
         meta = read_run_metrics(meta_path) if meta_path.exists() else None
         frame = meta.geo_frame.frame() if meta is not None and meta.geo_frame is not None else None
-        reference = None
+        reference = record = None
         truth_path = Path(spec.truth) if spec.truth else None
         if truth_path is None and meta is not None and meta.primary in ("truth", "footprints"):
             truth_path = meta.reference_path(meta.primary, meta_path.parent)
         if truth_path is not None:
             if truth_path.is_dir():
                 ev = SimulatorTruth()
-                ctx = EvaluationContext(truth_path, meta.source.frames_processed if meta else None, frame,
-                                        base.evaluation)
+                ref = ev.prepare(EvaluationContext(truth_path, meta.source.frames_processed if meta else None, frame,
+                                                   base.evaluation))
+                if ref is None:
+                    raise FeatmapError(f"{spec_path}: truth {truth_path} is not a truth/ folder or a footprints file")
             else:
                 if frame is None:
                     raise FeatmapError(f"{spec_path}: truth {truth_path} is WGS84 but {spec.input} has no metrics.json "
                                        "with a geo origin beside it to place it in the local frame")
+                own = meta.reference_path("footprints", meta_path.parent) if meta is not None else None
+                run_dir = meta_path.parent if own is not None and own.resolve() == truth_path.resolve() else None
+                record = None if run_dir is None else run_dir / FOOTPRINT_WALLS_FILE    # as the run observed them
                 ev = Footprints()
-                ctx = EvaluationContext(None, [], frame, base.evaluation.model_copy(update={"footprints": str(truth_path)}))
-            ref = ev.prepare(ctx)
-            if ref is None:
-                raise FeatmapError(f"{spec_path}: truth {truth_path} is not a truth/ folder or a footprints file")
+                ref = Reference(footprints_truth(truth_path, frame, run_dir), str(truth_path.resolve()))
             reference = (ev, ref)
-        digest = _digest(Path(spec.input).read_bytes(), _reference_content(truth_path))
+        digest = _digest(Path(spec.input).read_bytes(), _reference_content(truth_path), _reference_content(record))
         return SweepInputs(table.segments, table.scan, table.extra.get("rms"), reference, digest)
     if spec.batch is not None:
         return _batch_inputs(Path(spec.batch), base, cache_dir)
@@ -406,7 +410,7 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
     poses = refine_extraction(extraction, base.refinement).poses       # the poses a run would fuse with
     table = extraction.world_table(poses)
     ctx = EvaluationContext(source.location, extraction.frames, source.geo_origin, base.evaluation,
-                            extraction.world_points(poses), table.segments)
+                            extraction.world_points(poses), table.segments, point_scans=extraction.world_point_scans())
     reference = primary_reference(ctx)
     return _table_inputs(table, reference)
 

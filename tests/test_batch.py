@@ -613,3 +613,36 @@ def test_a_merged_map_without_truth_is_scored_against_the_drives_scan_points(fir
     record = merge_again()
     assert record.scores == {} and "room.log" in record.unscored
     assert (tmp_path / "merged_again" / "fused_proposed.csv").exists()
+
+
+def test_footprints_score_the_merged_map_on_what_the_drives_saw(first_batch, tmp_path, monkeypatch):
+    """Scored against building footprints, the merged map counts the walls the drives' scan points lie on
+    (as the drives' united simulator truths do), not every wall of the footprints file."""
+    from featmap.batch import merged_inputs, merged_reference
+    from featmap.evaluation import EvaluationConfig
+    from featmap.evaluation.references import truth_from_footprints
+    from featmap.evaluation.truth_metrics import truth_metrics
+
+    tmp, plan, _, _ = first_batch
+    merged = read_merged_record(tmp / "out" / "merged" / "merged.json")
+    inputs = merged_inputs([(d.name, d.run_dir) for d in merged.drives])
+    united = merged_reference(inputs)[1].data
+    footprints = Path(merged.drives[0].truth) / "footprints.geojson"      # the others drive the same streets
+    without_truth = replace(inputs, drives=[d.model_copy(update={"truth": None}) for d in inputs.drives])
+    evaluator, reference = merged_reference(without_truth, EvaluationConfig(footprints=str(footprints)), tmp / "cache")
+    assert evaluator.name == "footprints"
+    fused, _ = read_fused_csv(tmp / "out" / "merged" / "fused_proposed.csv")
+    observed, truth = truth_metrics(fused, reference.data), truth_metrics(fused, united)
+    whole = truth_metrics(fused, truth_from_footprints(footprints, inputs.frame))
+    assert observed["observable_walls"] == truth["observable_walls"] < whole["observable_walls"]
+    assert observed["recall"] == pytest.approx(truth["recall"], abs=0.02)
+    assert whole["recall"] < observed["recall"] - 0.3
+    # the merged folder keeps that record, and evaluate reads it back
+    from featmap import batch
+    from featmap.evaluation.references import footprints_truth
+
+    monkeypatch.setattr(batch, "merged_reference", lambda *args: (evaluator, reference))
+    batch.merge_task([(d.name, d.run_dir) for d in merged.drives], str(tmp_path / "merged"), ("proposed",),
+                     plan.merge_config, str(tmp / "cache"))
+    again = footprints_truth(footprints, inputs.frame, tmp_path / "merged")
+    assert again.observable().tolist() == reference.data.observable().tolist()

@@ -20,7 +20,7 @@ from pydantic import Field
 from featmap.config import Section
 from featmap.errors import ConfigError
 from featmap.evaluation.map_metric import TruthFreeConfig, map_reference, score_map
-from featmap.evaluation.references import load_simulator_truth, truth_from_footprints
+from featmap.evaluation.references import load_simulator_truth, observe_walls, truth_from_footprints
 from featmap.evaluation.truth_metrics import truth_metrics
 from featmap.geo import GeoFrame
 from featmap.io.sim_truth import is_truth_folder
@@ -43,6 +43,7 @@ class EvaluationContext:
         geo_frame: WGS84 origin of the run's local frame, or None.
         config: the ``evaluation:`` section.
         points: (P, 2) the scans' structure points in the world frame (from the extractor), or None.
+        point_scans: (P,) the scan each of ``points`` came from, or None (then they count as one scan).
         raw_segments: (N, 4) the extracted segments in the world frame, or None.
         workers: threads a reference may use (the run's worker count).
     """
@@ -54,6 +55,7 @@ class EvaluationContext:
     points: np.ndarray | None = None
     raw_segments: np.ndarray | None = None
     workers: int = 1
+    point_scans: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -94,7 +96,8 @@ class SimulatorTruth:
 
 
 class Footprints:
-    """Building footprints given in ``evaluation.footprints`` (every wall counts as observable)."""
+    """Building footprints given in ``evaluation.footprints``, observed by the run's scan points
+    (:func:`featmap.evaluation.references.observe_walls`; without points every wall counts as observable)."""
 
     name = "footprints"
 
@@ -105,7 +108,10 @@ class Footprints:
             raise ConfigError(f"evaluation.footprints={context.config.footprints}: footprints are WGS84 but this run "
                               "has no geo origin to place them in its local frame")
         path = Path(context.config.footprints).expanduser().resolve()
-        return Reference(truth_from_footprints(path, context.geo_frame), str(path))
+        truth = truth_from_footprints(path, context.geo_frame)
+        if context.points is not None:
+            truth = observe_walls(truth, context.points, context.point_scans)
+        return Reference(truth, str(path))
 
     def score(self, reference: Reference, fused: np.ndarray) -> dict:
         return truth_metrics(fused, reference.data)

@@ -1,8 +1,11 @@
 """Ground truth for :mod:`featmap.evaluation.truth_metrics`, from the references a run can have.
 
 - a simulated drive's ``truth/`` folder (walls with what the drive observed of them);
-- building footprints in a GeoJSON file (e.g. OpenStreetMap): no observation record, so every wall
-  counts as observable over its whole length and recall is a lower bound.
+- building footprints in a GeoJSON file (e.g. OpenStreetMap). They carry no observation record: a run
+  observes them with its scans' structure points (:func:`observe_walls`; the stretches of a footprint edge
+  that the scans' points lie on) and writes that record beside its map (``footprint_walls.csv``), which
+  :func:`footprints_truth` reads back. Without it every wall counts as observable over its whole length,
+  and recall is a lower bound.
 
 Both are expressed in the run's local metric frame.
 """
@@ -14,11 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from featmap.errors import ConfigError, InputFileError
-from featmap.evaluation.truth_metrics import GroundTruth
+from featmap.evaluation.truth_metrics import MIN_OBSERVED_M, TOL_M, GroundTruth
 from featmap.geo import GeoFrame, reproject, reproject_segments
 from featmap.io.geojson import features_of, wgs84_position
 from featmap.io.jsonfile import read_json
-from featmap.io.sim_truth import coverage_of_frames, read_objects_local, read_simulation_json, read_walls_csv
+from featmap.io.sim_truth import (COVERAGE_BIN_M, FOOTPRINT_WALLS_FILE, TruthWalls, coverage_of_frames, observed_intervals,
+                                  read_objects_local, read_simulation_json, read_walls_csv)
 
 
 def simulation_frame(truth_dir: str | Path) -> GeoFrame:
@@ -110,6 +114,90 @@ def truth_from_footprints(path: str | Path, frame: GeoFrame) -> GroundTruth:
     lengths = np.hypot(walls[:, 2] - walls[:, 0], walls[:, 3] - walls[:, 1])
     return GroundTruth(walls=walls, building=np.asarray(building), labels=np.asarray(labels).reshape(-1, 2),
                        observed=[[(0.0, float(L))] for L in lengths], n_returns=np.full(len(walls), -1))
+
+
+VIEW_POINTS_PER_BIN = 2
+"""A scan observes a ``COVERAGE_BIN_M`` bin of a footprint wall when at least this many of its structure points
+lie in it. Chosen on tuning worlds 11-22 against the simulator's per-scan truth (observations with >= 50 hits
+and >= 2 m, no range cap): with 1 the footprints counted 2-62 % more walls than it and the proposed map's
+recall fell 0.006-0.17 below the truth's; with 3 they counted up to 25 % fewer walls (recall up to 0.027
+above); with 2 they counted 0-37 % more walls and recall stayed within 0.016 of the truth's on 11 of the 12
+worlds (world 15: 0.052 below). ``benchmarks/bench_footprints.py`` reports the held-out worlds."""
+
+
+def observe_walls(truth: GroundTruth, points: np.ndarray, scans: np.ndarray | None = None, tol_m: float = TOL_M,
+                  bin_m: float = COVERAGE_BIN_M, min_points: int = VIEW_POINTS_PER_BIN,
+                  min_view_m: float = MIN_OBSERVED_M) -> GroundTruth:
+    """``truth`` with its observation record taken from scan points: what a drive saw of footprint walls.
+
+    The simulator's per-scan rule, with structure points for rays: a point observes a wall when it lies
+    within ``tol_m`` of it (perpendicular) and projects inside it; a scan observes a ``bin_m`` bin of the
+    wall when at least ``min_points`` of its points observe the wall there; a scan's view of a wall counts
+    when it observes at least ``min_view_m`` of it; the wall's observed intervals are the bins that a
+    counting view observed. ``n_returns`` is -1 (points are not returns), so a wall is observable when
+    its observed part is at least 2 m long.
+
+    Args:
+        truth: walls (W, 4) in the run's local frame (e.g. :func:`truth_from_footprints`).
+        points: (P, 2) the scans' structure points in the same frame (every return of a 2D laser; the
+            wall candidate cells of a 3D LiDAR).
+        scans: (P,) the scan of each point; None: all from one scan.
+    """
+    from scipy.spatial import cKDTree
+
+    points = np.asarray(points, float).reshape(-1, 2)
+    scans = np.zeros(len(points), np.int64) if scans is None else np.asarray(scans, np.int64).reshape(-1)
+    if len(scans) != len(points):
+        raise ValueError(f"{len(points)} points but {len(scans)} scan ids")
+    finite = np.isfinite(points).all(axis=1)
+    points, scans = points[finite], scans[finite]
+    tree = cKDTree(points) if len(points) else None
+    observed = []
+    for wall in np.asarray(truth.walls, float):
+        p, q = wall[:2], wall[2:]
+        length = float(np.hypot(*(q - p)))
+        if tree is None or length == 0:
+            observed.append([])
+            continue
+        u = (q - p) / length
+        near = np.asarray(tree.query_ball_point((p + q) / 2, length / 2 + tol_m), np.int64)
+        rel = points[near] - p
+        along = rel @ u
+        on = (np.abs(rel[:, 0] * u[1] - rel[:, 1] * u[0]) <= tol_m) & (along >= 0) & (along < length)
+        n_bins = max(1, int(np.ceil(length / bin_m)))
+        bins = np.minimum((along[on] / bin_m).astype(np.int64), n_bins - 1)
+        scan_bins, count = np.unique(scans[near][on] * n_bins + bins, return_counts=True)
+        scan_bins = scan_bins[count >= min_points]                  # (scan, bin) pairs the scan observed
+        view, view_bins = np.unique(scan_bins // n_bins, return_counts=True)
+        counting = np.isin(scan_bins // n_bins, view[view_bins * bin_m >= min_view_m - 1e-9])
+        seen = np.bincount(scan_bins[counting] % n_bins, minlength=n_bins)
+        observed.append(observed_intervals(seen, 1, bin_m, length))
+    return GroundTruth(walls=truth.walls, building=truth.building, labels=truth.labels, observed=observed,
+                       n_returns=np.full(len(truth.walls), -1, np.int64), other_segments=truth.other_segments,
+                       poles=truth.poles)
+
+
+def observation_record(truth: GroundTruth) -> TruthWalls:
+    """The walls and observation record of ``truth`` as ``walls.csv`` holds them."""
+    return TruthWalls(truth.walls, truth.building, truth.labels, np.asarray(truth.n_returns, np.int64), truth.observed)
+
+
+def footprints_truth(path: str | Path, frame: GeoFrame, run_dir: str | Path | None = None) -> GroundTruth:
+    """Building footprints as a run scored them: with the observation record the run in ``run_dir`` wrote
+    (``footprint_walls.csv``) when it holds these very walls, else every wall observable.
+
+    Raises:
+        InputFileError: the footprints, or the record, are unreadable.
+    """
+    truth = truth_from_footprints(path, frame)
+    record_path = None if run_dir is None else Path(run_dir) / FOOTPRINT_WALLS_FILE
+    if record_path is None or not record_path.is_file():
+        return truth
+    record = read_walls_csv(record_path)
+    if record.walls.shape != truth.walls.shape or not np.allclose(record.walls, truth.walls, atol=1e-3):
+        return truth            # the footprints changed since the run: its record is not theirs
+    return GroundTruth(walls=truth.walls, building=truth.building, labels=truth.labels, observed=record.observed,
+                       n_returns=record.n_returns)
 
 
 def _union(intervals: list) -> list:

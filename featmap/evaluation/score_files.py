@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from featmap.errors import FeatmapError, InputFileError
-from featmap.evaluation.references import load_simulator_truth, simulation_frame, truth_from_footprints
+from featmap.evaluation.references import footprints_truth, load_simulator_truth, simulation_frame
 from featmap.evaluation.truth_metrics import MAX_SCORED_LENGTH_M, STEP_M, truth_metrics
 from featmap.geo import GeoFrame
 from featmap.io.sim_truth import is_truth_folder
@@ -24,7 +24,8 @@ def parse_origin(origin: str) -> GeoFrame:
         raise FeatmapError(f"--origin {origin!r}: {exc}") from None
 
 
-def _frame_for_csv(fused: Path, origin: str | None) -> GeoFrame | None:
+def _local_frame(fused: Path, origin: str | None) -> GeoFrame | None:
+    """The local frame to score ``fused`` in: ``--origin``, else its run's (metrics.json beside it), else None."""
     from featmap.io.run_metrics import read_run_metrics
 
     if origin is not None:
@@ -49,17 +50,17 @@ def evaluate_file(fused: str | Path, truth: str | Path, origin: str | None = Non
         raise InputFileError(truth, "ground truth not found")
     if truth.is_dir() and not is_truth_folder(truth):
         raise InputFileError(truth, "not a simulated drive's truth/ folder (walls.csv and simulation.json expected)")
-    if fused.suffix.lower() in (".geojson", ".json"):
-        frame = first_position(truth) if truth.is_file() else simulation_frame(truth)
+    if fused.suffix.lower() in (".geojson", ".json"):        # WGS84: scored in its run's frame where it has one
+        frame = _local_frame(fused, origin) or (first_position(truth) if truth.is_file() else simulation_frame(truth))
         segments, _ = read_segments_geojson(fused, frame)
     else:
-        frame = _frame_for_csv(fused, origin)
+        frame = _local_frame(fused, origin)
         segments, _ = read_fused_csv(fused)
         if frame is None and truth.is_file():
             raise FeatmapError(f"{fused}: a CSV is in a local frame; give --origin LAT,LON or keep it next to its metrics.json")
     _check_scored_length(fused, segments, "segments", "is it one drive's map?")
     gt = (load_simulator_truth(truth, frame, _frames_of_run(fused, truth)) if truth.is_dir()
-          else truth_from_footprints(truth, frame))
+          else footprints_truth(truth, frame, _run_scored_against(fused, truth, "footprints")))
     _check_scored_length(truth, gt.walls, "walls", "crop it to the drive's area")
     return truth_metrics(segments, gt)
 
@@ -72,16 +73,22 @@ def _check_scored_length(path: Path, segments: np.ndarray, what: str, advice: st
                                    f"({MAX_SCORED_LENGTH_M / 1e3:,.0f} km at {100 * STEP_M:.0f} cm samples): {advice}")
 
 
-def _frames_of_run(fused: Path, truth: Path) -> list[int] | None:
-    """The frames the run beside ``fused`` was made from, when it was scored against this ``truth`` folder
-    (a run of selected frames observed only part of the drive's walls); None: every frame."""
+def _run_scored_against(fused: Path, truth: Path, reference: str) -> Path | None:
+    """The run folder ``fused`` lies in, when that run was scored against ``truth`` as its ``reference``
+    (``truth`` or ``footprints``); else None."""
     from featmap.io.run_metrics import read_run_metrics
 
     metrics = fused.parent / "metrics.json"
     if not metrics.exists():
         return None
-    meta = read_run_metrics(metrics)
-    own = meta.reference_path("truth", fused.parent)
-    if own is None or own.resolve() != truth.resolve():
-        return None
-    return meta.source.frames_processed
+    own = read_run_metrics(metrics).reference_path(reference, fused.parent)
+    return fused.parent if own is not None and own.resolve() == truth.resolve() else None
+
+
+def _frames_of_run(fused: Path, truth: Path) -> list[int] | None:
+    """The frames the run beside ``fused`` was made from, when it was scored against this ``truth`` folder
+    (a run of selected frames observed only part of the drive's walls); None: every frame."""
+    from featmap.io.run_metrics import read_run_metrics
+
+    run_dir = _run_scored_against(fused, truth, "truth")
+    return None if run_dir is None else read_run_metrics(run_dir / "metrics.json").source.frames_processed

@@ -26,11 +26,13 @@ from pathlib import Path
 import numpy as np
 
 from featmap.errors import InputFileError
-from featmap.io.atomic import atomic_path
+from featmap.io.atomic import atomic_path, atomic_write_text
 from featmap.io.jsonfile import read_json
 
 COVERAGE_BIN_M = 0.5
 MIN_BIN_RETURNS = 3
+FOOTPRINT_WALLS_FILE = "footprint_walls.csv"
+"""A run's record of what its scans observed of the building footprints it was scored against (WALL_COLUMNS)."""
 WALL_COLUMNS = ("building", "x1", "y1", "x2", "y2", "label_1", "label_2", "n_returns", "observed_intervals")
 
 
@@ -101,6 +103,18 @@ def read_walls_csv(path: str | Path) -> TruthWalls:
         observed.append(intervals)
     return TruthWalls(np.asarray(walls, float).reshape(-1, 4), np.asarray(building, dtype=str),
                       np.asarray(labels, dtype=str).reshape(-1, 2), np.asarray(n_returns, np.int64), observed)
+
+
+def write_walls_csv(path: str | Path, walls: TruthWalls) -> None:
+    """``walls.csv`` (the columns :func:`read_walls_csv` reads: ``WALL_COLUMNS``), written atomically."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(WALL_COLUMNS)
+    for w in range(len(walls.walls)):
+        x1, y1, x2, y2 = walls.walls[w]
+        writer.writerow([walls.building[w], f"{x1:.4f}", f"{y1:.4f}", f"{x2:.4f}", f"{y2:.4f}", *walls.labels[w],
+                         int(walls.n_returns[w]), ";".join(f"{a:.2f}-{b:.2f}" for a, b in walls.observed[w])])
+    atomic_write_text(path, buf.getvalue())
 
 
 def write_coverage(path: Path, per_frame: list[tuple[np.ndarray, np.ndarray, np.ndarray]], bin_offset: np.ndarray) -> None:

@@ -12,10 +12,11 @@ from featmap.outputs.base import Output, OutputConfig, RunProducts
 from featmap.outputs.comparison import Comparison, write_comparison
 from featmap.outputs.maps import (FusedGeojson, HtmlMap, Kml, LayersGeojson, OverviewPng, RefinedTrajectoryGeojson,
                                   tiles_of)
-from featmap.outputs.tables import FusedCsv, PoseCorrectionsCsv, RefinedTrajectoryCsv, SegmentsCsv, TrajectoryCsv
+from featmap.outputs.tables import (FootprintWallsCsv, FusedCsv, PoseCorrectionsCsv, RefinedTrajectoryCsv, SegmentsCsv,
+                                    TrajectoryCsv)
 
 OUTPUTS: tuple[Output, ...] = (SegmentsCsv(), FusedCsv(), TrajectoryCsv(), RefinedTrajectoryCsv(), PoseCorrectionsCsv(),
-                               FusedGeojson(), LayersGeojson(), RefinedTrajectoryGeojson(), Kml(), HtmlMap(),
+                               FootprintWallsCsv(), FusedGeojson(), LayersGeojson(), RefinedTrajectoryGeojson(), Kml(), HtmlMap(),
                                OverviewPng(), Comparison())
 
 

@@ -54,6 +54,8 @@ class RunProducts:
         source_poses: (F, 4, 4) the poses as the source gave them (None: the same as ``poses``).
         corrections: (F, 3) per-scan pose corrections ``dx, dy`` (m) and ``dyaw`` (rad) of the refinement
             (:mod:`featmap.refinement.base`), or None when no refinement ran.
+        footprints: the building footprints the run was scored against with what its scans observed of
+            them (walls.csv's record, :class:`featmap.io.sim_truth.TruthWalls`), or None.
     """
 
     table: SegmentTable
@@ -67,6 +69,7 @@ class RunProducts:
     output: OutputConfig
     source_poses: np.ndarray | None = None
     corrections: np.ndarray | None = None
+    footprints: Any = None
 
     @property
     def trajectory(self) -> np.ndarray:

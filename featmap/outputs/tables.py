@@ -1,5 +1,6 @@
-"""The CSV files of the output contract: ``segments.csv``, ``fused_<method>.csv``, ``trajectory.csv``; and, when
-pose refinement ran, ``trajectory_refined.csv`` and ``pose_corrections.csv``."""
+"""The CSV files of the output contract: ``segments.csv``, ``fused_<method>.csv``, ``trajectory.csv``; when
+pose refinement ran, ``trajectory_refined.csv`` and ``pose_corrections.csv``; when the run was scored against
+building footprints, ``footprint_walls.csv`` (what its scans observed of them)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from pathlib import Path
 from featmap.io.atomic import atomic_write_text
 from featmap.io.pose_csv import corrections_csv_text, trajectory_csv_text
 from featmap.io.segments_csv import write_fused_csv, write_segments_csv
+from featmap.io.sim_truth import FOOTPRINT_WALLS_FILE, write_walls_csv
 from featmap.outputs.base import OutputConfig, RunProducts
 
 
@@ -80,3 +82,20 @@ class PoseCorrectionsCsv:
             return []
         atomic_write_text(folder / "pose_corrections.csv", corrections_csv_text(products.frames, products.corrections))
         return ["pose_corrections.csv"]
+
+
+class FootprintWallsCsv:
+    """The footprint walls a run was scored against with what its scans observed of them (local frame), so
+    that ``featmap evaluate``, ``featmap figures`` and sweeps score its maps as the run did."""
+
+    name = "footprint_walls.csv"
+    needs_geo = False
+
+    def enabled(self, config: OutputConfig) -> bool:
+        return True
+
+    def write(self, products: RunProducts, folder: Path) -> list[str]:
+        if products.footprints is None:
+            return []
+        write_walls_csv(folder / FOOTPRINT_WALLS_FILE, products.footprints)
+        return [FOOTPRINT_WALLS_FILE]

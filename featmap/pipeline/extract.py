@@ -82,6 +82,12 @@ class Extraction:
         parts = [p for p in parts if p is not None]
         return np.concatenate(parts) if parts else None
 
+    def world_point_scans(self) -> np.ndarray | None:
+        """(P,) the frame number of each of :meth:`world_points`' points, or None when there are none."""
+        parts = [np.full(len(s.support_points), frame, np.int64)
+                 for frame, s in zip(self.frames, self.scans) if s.support_points is not None]
+        return np.concatenate(parts) if parts else None
+
 
 def _extract_one(task: tuple[int, str, np.ndarray, Extractor, object]) -> tuple[int, str, ScanSegments, float]:
     """Executor task: (frame, key, points, extractor, config section) -> (frame, key, segments, seconds)."""

@@ -16,6 +16,7 @@ from pathlib import Path
 from featmap import __version__
 from featmap.datasets.base import ScanSource
 from featmap.evaluation import EVALUATORS, EvaluationContext, Evaluator, Reference
+from featmap.evaluation.references import observation_record
 from featmap.io.atomic import atomic_write_text
 from featmap.io.run_metrics import (GeoRecord, MethodRecord, OnlineRecord, RefinementRecord, RunMetrics,
                                     ScanCounts, SourceRecord, write_run_metrics)
@@ -126,7 +127,8 @@ class MappingPipeline:
                 runs = [MethodRun("proposed", online.result, online.fusion_seconds)]
             t_eval = time.perf_counter()
             context = EvaluationContext(source.location, extraction.frames, source.geo_origin, self.config.evaluation,
-                                        extraction.world_points(poses), table.segments, self.executor.workers)
+                                        extraction.world_points(poses), table.segments, self.executor.workers,
+                                        extraction.world_point_scans())
             references = prepare_references(context)
             scores = score_methods(runs, references)
             eval_seconds = time.perf_counter() - t_eval
@@ -163,7 +165,9 @@ class MappingPipeline:
                                    poses=poses, geo_frame=source.geo_origin, truth=truth,
                                    config_yaml=self.config.to_yaml(), metrics=metrics, output=self.config.output,
                                    source_poses=extraction.poses,
-                                   corrections=None if refinement.method == "none" else refinement.result.corrections)
+                                   corrections=None if refinement.method == "none" else refinement.result.corrections,
+                                   footprints=(observation_record(references["footprints"][1].data)
+                                               if "footprints" in references else None))
             t_write = time.perf_counter()
             files = write_outputs(products, folder.tmp, self.outputs)
             atomic_write_text(folder.tmp / "config.yaml", products.config_yaml)

@@ -216,7 +216,7 @@ class RunData:
 
 def load_run(run_dir: str | Path, config=None) -> RunData:
     """Read a run folder back (its config, or ``config`` when given, e.g. with ``--set`` overrides)."""
-    from featmap.evaluation.references import load_simulator_truth, truth_from_footprints
+    from featmap.evaluation.references import footprints_truth, load_simulator_truth
     from featmap.io.pose_csv import read_trajectory_xy
     from featmap.io.run_metrics import read_run_metrics
     from featmap.io.segments_csv import read_fused_csv, read_segments_csv
@@ -238,5 +238,5 @@ def load_run(run_dir: str | Path, config=None) -> RunData:
     if truth_dir is not None and truth_dir.exists():
         truth = load_simulator_truth(truth_dir, frame, metrics.source.frames_processed)
     elif footprints is not None and footprints.exists() and frame is not None:
-        truth = truth_from_footprints(footprints, frame)
+        truth = footprints_truth(footprints, frame, run_dir)
     return RunData(run_dir, metrics, config, segments, fused, trajectory, truth)

@@ -8,7 +8,10 @@ import pytest
 from featmap.errors import InputFileError
 from featmap.evaluation import EvaluationConfig, EvaluationContext
 from featmap.evaluation.plugins import Footprints, SimulatorTruth
-from featmap.evaluation.references import load_simulator_truth, truth_from_footprints
+from featmap.evaluation.references import (footprints_truth, load_simulator_truth, observation_record, observe_walls,
+                                          truth_from_footprints)
+from featmap.evaluation.truth_metrics import truth_metrics
+from featmap.io.sim_truth import FOOTPRINT_WALLS_FILE, read_walls_csv, write_walls_csv
 from featmap.geo import GeoFrame
 
 FRAME = GeoFrame(49.011, 8.424)
@@ -122,3 +125,77 @@ def test_merged_truth_unites_what_each_drive_observed_of_the_same_walls():
     assert merged.n_returns.tolist() == [160, 80, 90]
     assert merged.observable().tolist() == [True, True, True]
     assert merge_truths([one]).observed == one.observed
+
+
+def _wall_points(rng, x0, x1, y, n, noise=0.03):
+    """(n, 2) points along the wall y = const between x0 and x1, with Gaussian noise across it."""
+    return np.column_stack([rng.uniform(x0, x1, n), y + rng.normal(0, noise, n)])
+
+
+def test_scan_points_observe_the_stretches_of_footprint_walls_they_lie_on(tmp_path):
+    """A 10 m square: its south wall seen from x = 2 to 7, its north wall seen from 1 m away (a hedge in front,
+    not the wall), the east wall with 3 points, the west wall not at all: only the south wall is observable,
+    over 2-7 m, and a map of that stretch has recall 1 against it (0.14 against the footprints counted whole:
+    5.6 m, with the 0.3 m tolerance at both ends, of 40 m)."""
+    rng = np.random.default_rng(0)
+    truth = truth_from_footprints(_write(tmp_path, [{"type": "Feature", "properties": {"id": "A"},
+                                                     "geometry": {"type": "Polygon", "coordinates": [_square(FRAME)]}}]),
+                                  FRAME)
+    south = int(np.argmin(truth.walls[:, 1] + truth.walls[:, 3]))
+    points = np.concatenate([_wall_points(rng, 2.0, 7.0, 0.0, 400), _wall_points(rng, 0.0, 10.0, 11.0, 400),
+                             np.array([[10.0, 4.0], [10.1, 5.0], [9.9, 6.0]])])
+    observed = observe_walls(truth, points)
+    assert observed.observable().tolist() == [w == south for w in range(4)]
+    (a, b), = observed.observed[south]
+    length = np.hypot(*(truth.walls[south, 2:] - truth.walls[south, :2]))
+    start = 2.0 if truth.walls[south, 0] < truth.walls[south, 2] else length - 7.0
+    assert a == pytest.approx(start, abs=0.5) and b - a == pytest.approx(5.0, abs=0.5)
+    assert (observed.n_returns == -1).all()                      # points are not returns
+    seen = np.array([[2.0, 0.0, 7.0, 0.0]])
+    assert truth_metrics(seen, observed)["recall"] == pytest.approx(1.0, abs=0.02)
+    assert truth_metrics(seen, truth)["recall"] == pytest.approx(5.6 / 40, abs=0.005)
+    assert not observe_walls(truth, np.zeros((0, 2))).observable().any()
+    assert observe_walls(truth, np.array([[np.nan, np.nan], *points])).observed == observed.observed
+
+
+def test_a_footprint_wall_is_observed_by_scans_that_each_see_two_metres_of_it(tmp_path):
+    """As in the simulator's per-scan truth, a wall counts where one scan saw at least 2 m of it: twenty
+    scans that each see 1 m of the south wall (together 11 m of it) observe nothing; one more scan that
+    sees 3 m of it observes those 3 m; a scan with one point per 0.5 m bin (a sparse view) observes nothing."""
+    rng = np.random.default_rng(2)
+    truth = truth_from_footprints(_write(tmp_path, [{"type": "Feature", "properties": {"id": "A"},
+                                                     "geometry": {"type": "Polygon", "coordinates": [_square(FRAME)]}}]),
+                                  FRAME)
+    south = int(np.argmin(truth.walls[:, 1] + truth.walls[:, 3]))
+    glimpses = [_wall_points(rng, 0.5 * k, 0.5 * k + 1.0, 0.0, 40) for k in range(20)]
+    points = np.concatenate(glimpses)
+    scans = np.repeat(np.arange(20), 40)
+    assert not observe_walls(truth, points, scans).observable().any()
+    assert observe_walls(truth, points).observable()[south]                  # as one scan: 11 m
+    view = _wall_points(rng, 6.0, 9.0, 0.0, 60)
+    seen = observe_walls(truth, np.concatenate([points, view]), np.concatenate([scans, np.full(60, 20)]))
+    assert seen.observable().tolist() == [w == south for w in range(4)]
+    (a, b), = seen.observed[south]
+    assert b - a == pytest.approx(3.0, abs=0.5)
+    sparse = np.column_stack([np.arange(0.25, 10, 0.5), np.zeros(20)])       # one point per bin
+    assert not observe_walls(truth, sparse).observable().any()
+    with pytest.raises(ValueError, match="20 points but 3 scan ids"):
+        observe_walls(truth, sparse, np.zeros(3))
+
+
+def test_a_runs_footprint_record_is_read_back_only_for_the_same_footprints(tmp_path):
+    rng = np.random.default_rng(1)
+    path = _write(tmp_path, [{"type": "Feature", "properties": {"id": "A"},
+                              "geometry": {"type": "Polygon", "coordinates": [_square(FRAME)]}}])
+    observed = observe_walls(truth_from_footprints(path, FRAME), _wall_points(rng, 2.0, 7.0, 0.0, 400))
+    run = tmp_path / "run"
+    write_walls_csv(run / FOOTPRINT_WALLS_FILE, observation_record(observed))
+    record = read_walls_csv(run / FOOTPRINT_WALLS_FILE)
+    assert record.n_returns.tolist() == observed.n_returns.tolist() and record.building.tolist() == ["A"] * 4
+    back = footprints_truth(path, FRAME, run)
+    assert back.observable().tolist() == observed.observable().tolist()
+    assert [[(round(a, 2), round(b, 2)) for a, b in iv] for iv in observed.observed] == back.observed
+    assert footprints_truth(path, FRAME).observable().all()                   # no run: every wall
+    moved = _write(tmp_path, [{"type": "Feature", "properties": {"id": "A"},
+                               "geometry": {"type": "Polygon", "coordinates": [_square(FRAME, 0.5)]}}])
+    assert footprints_truth(moved, FRAME, run).observable().all()             # not the footprints the run observed

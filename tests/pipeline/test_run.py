@@ -2,6 +2,7 @@
 
 import csv
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ from typer.testing import CliRunner
 from featmap.cli import app
 from featmap.datasets import KittiRawDataset
 from featmap.errors import DatasetError
-from featmap.io.run_metrics import read_run_metrics
+from featmap.io.run_metrics import read_run_metrics, write_run_metrics
 from featmap.pipeline import MappingPipeline, SegmentStore, load_config
 from featmap.reporting import RecordingReporter
 from featmap.pipeline.run_folder import MANIFEST
@@ -170,9 +171,38 @@ def test_cli_evaluate_scores_a_run_of_selected_frames_as_the_run_did(run_case1, 
     assert json.loads((tmp_path / "m2.json").read_text())["observable_walls"] >= m["observable_walls"]
 
 
-def test_footprints_from_the_config_score_a_run(run_case1, case1_drive, tmp_path):
+def test_footprints_from_the_config_score_a_run_on_the_walls_its_scans_saw(run_case1, case1_drive, tmp_path):
+    """Footprints carry no observation record: the run takes it from its scans' points, so it scores the two
+    walls the drive saw (of the building's four) as the simulator's truth does, writes the record, and
+    evaluate, figures and sweeps read it back (a footprints file the run did not observe counts whole)."""
+    from featmap.pipeline.run_folder import load_run
+    from featmap.sweep import run_sweep_file
+
     footprints = case1_drive.drive_dir / "truth" / "footprints.geojson"
     metrics = run_case1([f"evaluation.footprints={footprints}"]).metrics
     assert metrics.primary == "truth" and set(metrics.references) == {"truth", "footprints", "map"}
-    fp = metrics.methods["proposed"].scores["footprints"]
-    assert fp["observable_walls"] == 4 and fp["precision"] > 0.95
+    fp, truth = metrics.methods["proposed"].scores["footprints"], metrics.methods["proposed"].scores["truth"]
+    assert fp["observable_walls"] == truth["observable_walls"] == 2 and fp["precision"] > 0.95
+    assert fp["recall"] == pytest.approx(truth["recall"], abs=0.01) and fp["recall"] > 0.95
+    assert (tmp_path / "run" / "footprint_walls.csv").exists()
+    for fused in ("fused_proposed.csv", "fused_proposed.geojson"):
+        res = runner.invoke(app, ["evaluate", str(tmp_path / "run" / fused), "--truth", str(footprints),
+                                  "--out", str(tmp_path / "m.json")])
+        assert res.exit_code == 0, res.output
+        m = json.loads((tmp_path / "m.json").read_text())
+        assert m["observable_walls"] == 2 and m["recall"] == pytest.approx(fp["recall"], abs=1e-6), fused
+    record = read_run_metrics(tmp_path / "run" / "metrics.json")     # a run scored against footprints only
+    shutil.copytree(tmp_path / "run", tmp_path / "fp_only")
+    write_run_metrics(tmp_path / "fp_only" / "metrics.json", record.model_copy(
+        update={"references": {"footprints": str(footprints)}, "primary": "footprints"}))
+    assert load_run(tmp_path / "fp_only").truth.observable().sum() == 2
+    spec = tmp_path / "s.yaml"
+    spec.write_text(f"input: {tmp_path / 'run' / 'segments.csv'}\ntruth: {footprints}\nmethods: [proposed]\n"
+                    "grid: {fusion.proposed.gamma: [0.5]}\n")
+    rows, _ = run_sweep_file(spec, tmp_path / "sweep")
+    assert rows[0]["count_ratio"] == pytest.approx(rows[0]["count"] / 2)
+    other = tmp_path / "copy.geojson"                       # the same footprints elsewhere: not the run's
+    other.write_text(footprints.read_text())
+    res = runner.invoke(app, ["evaluate", str(tmp_path / "run" / "fused_proposed.csv"), "--truth", str(other),
+                              "--out", str(tmp_path / "m.json")])
+    assert res.exit_code == 0 and json.loads((tmp_path / "m.json").read_text())["observable_walls"] == 4
