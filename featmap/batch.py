@@ -741,9 +741,10 @@ def merged_reference(inputs: MergedInputs, evaluation=None, cache_dir: str | Pat
     The drives' simulator truths united in the merged frame when every drive has one; otherwise, with the
     ``evaluation:`` section given, what a run of its own would be scored against: building footprints
     (``evaluation.footprints``, when the merged frame has a geo origin), else the truth-free map metric.
-    Both use every drive's scan points (``merged_points``, from the segment cache in ``cache_dir``): the
-    footprints' observation record, the map metric's reference. Without ``cache_dir`` every footprint wall
-    counts as observable and there is no map metric.
+    The footprints come with what the drives observed of them: their runs' records united
+    (:func:`drive_footprints`), else observed anew by every drive's scan points (``merged_points``, from
+    the segment cache in ``cache_dir``), which are also the map metric's reference. Without either every
+    footprint wall counts as observable, and there is no map metric.
 
     Raises:
         FeatmapError: a drive's scans cannot be read again (moved, changed).
@@ -760,11 +761,40 @@ def merged_reference(inputs: MergedInputs, evaluation=None, cache_dir: str | Pat
         return SimulatorTruth(), Reference(merge_truths(truths), ";".join(d.truth for d in inputs.drives))
     if evaluation is None:
         return None
+    if evaluation.footprints is not None and inputs.frame is not None:
+        united = drive_footprints(inputs, Path(evaluation.footprints).expanduser().resolve())
+        if united is not None:
+            return united
     context = EvaluationContext(None, None, inputs.frame, evaluation)
     found = None if cache_dir is None else merged_points(inputs, cache_dir)
     if found is not None:           # footprints are observed by them; without footprints they are the reference
         context = replace(context, points=found[0], point_scans=found[1], raw_segments=inputs.table.segments)
     return primary_reference(context)
+
+
+def drive_footprints(inputs: MergedInputs, footprints: Path):
+    """(evaluator, Reference): the footprints as the drives' runs observed them (each run's
+    ``footprint_walls.csv``, united in the merged frame as the drives' simulator truths are), or None when
+    a drive's run was not scored against these footprints or kept no record of them.
+
+    Raises:
+        InputFileError: a drive's record is unreadable or not of these footprints.
+    """
+    from featmap.evaluation import Reference
+    from featmap.evaluation.plugins import Footprints
+    from featmap.evaluation.references import footprints_truth, merge_truths
+    from featmap.io.run_metrics import read_run_metrics
+    from featmap.io.sim_truth import FOOTPRINT_WALLS_FILE
+
+    truths = []
+    for d in inputs.drives:
+        run_dir = Path(d.run_dir)
+        own = read_run_metrics(run_dir / "metrics.json").reference_path("footprints", run_dir)
+        if own is None or own.resolve() != footprints or not (run_dir / FOOTPRINT_WALLS_FILE).is_file():
+            return None
+        truths.append(footprints_truth(footprints, inputs.frame, run_dir,
+                                       d.geo_frame.frame() if d.geo_frame is not None else None))
+    return Footprints(), Reference(merge_truths(truths), str(footprints))
 
 
 def drive_points(run_dir: str | Path, cache_dir: str | Path) -> tuple[np.ndarray, np.ndarray] | None:

@@ -419,8 +419,17 @@ def _table_inputs(table: SegmentTable, reference: tuple[Evaluator, Reference] | 
     """Sweep inputs from a world-frame segment table (its ``rms`` column, when it has one, goes along)."""
     rms = table.extra.get("rms")
     parts = [table.segments.tobytes(), table.scan.tobytes()] + ([] if rms is None else [np.asarray(rms).tobytes()])
-    digest = _digest(*parts, _reference_content(reference[1].path if reference else None))
+    digest = _digest(*parts, _reference_content(reference[1].path if reference else None), _observation_content(reference))
     return SweepInputs(table.segments, table.scan, rms, reference, digest)
+
+
+def _observation_content(reference: tuple[Evaluator, Reference] | None) -> bytes:
+    """What footprints were scored on besides their file: the walls kept and what the scans observed of
+    them (the rule may change while the file and the segments do not); nothing for other references."""
+    if reference is None or reference[0].name != "footprints":
+        return b""
+    truth = reference[1].data
+    return np.asarray(truth.walls, float).tobytes() + repr(truth.observed).encode()
 
 
 def _batch_inputs(folder: Path, base: FeatmapConfig, cache_dir) -> SweepInputs:

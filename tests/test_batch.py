@@ -639,10 +639,35 @@ def test_footprints_score_the_merged_map_on_what_the_drives_saw(first_batch, tmp
     assert whole["recall"] < observed["recall"] - 0.3
     # the merged folder keeps that record, and evaluate reads it back
     from featmap import batch
-    from featmap.evaluation.references import footprints_truth
 
     monkeypatch.setattr(batch, "merged_reference", lambda *args: (evaluator, reference))
     batch.merge_task([(d.name, d.run_dir) for d in merged.drives], str(tmp_path / "merged"), ("proposed",),
                      plan.merge_config, str(tmp / "cache"))
-    again = footprints_truth(footprints, inputs.frame, tmp_path / "merged")
-    assert again.observable().tolist() == reference.data.observable().tolist()
+    res = runner.invoke(app, ["evaluate", str(tmp_path / "merged" / "fused_proposed.csv"), "--truth", str(footprints),
+                              "--out", str(tmp_path / "m.json")])
+    assert res.exit_code == 0, res.output
+    assert json.loads((tmp_path / "m.json").read_text())["recall"] == pytest.approx(observed["recall"], abs=1e-6)
+    monkeypatch.undo()
+    # drives whose runs were scored against the footprints: their records, united, without reading any scan
+    from featmap.batch import drive_points
+    from featmap.evaluation.references import observation_record, observed_footprints
+    from featmap.io.run_metrics import read_run_metrics, write_run_metrics
+    from featmap.io.sim_truth import FOOTPRINT_WALLS_FILE, write_walls_csv
+
+    scored = []
+    for d in merged.drives:
+        run = tmp_path / "scored" / d.name
+        shutil.copytree(d.run_dir, run)
+        meta = read_run_metrics(run / "metrics.json")
+        write_run_metrics(run / "metrics.json", meta.model_copy(update={"references": {**meta.references,
+                                                                                          "footprints": str(footprints)}}))
+        points, frames = drive_points(run, tmp / "cache")
+        write_walls_csv(run / FOOTPRINT_WALLS_FILE, observation_record(
+            observed_footprints(truth_from_footprints(footprints, meta.geo_frame.frame()), points, frames)))
+        scored.append((d.name, str(run)))
+    scored_inputs = merged_inputs(scored)
+    scored_inputs = replace(scored_inputs, drives=[d.model_copy(update={"truth": None}) for d in scored_inputs.drives])
+    evaluator, united = merged_reference(scored_inputs, EvaluationConfig(footprints=str(footprints)))   # no cache
+    assert evaluator.name == "footprints"
+    assert truth_metrics(fused, united.data)["observable_walls"] == observed["observable_walls"]
+    assert truth_metrics(fused, united.data)["recall"] == pytest.approx(observed["recall"], abs=0.005)

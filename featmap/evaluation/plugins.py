@@ -20,7 +20,7 @@ from pydantic import Field
 from featmap.config import Section
 from featmap.errors import ConfigError
 from featmap.evaluation.map_metric import TruthFreeConfig, map_reference, score_map
-from featmap.evaluation.references import load_simulator_truth, observe_walls, truth_from_footprints
+from featmap.evaluation.references import load_simulator_truth, observed_footprints, truth_from_footprints
 from featmap.evaluation.truth_metrics import truth_metrics
 from featmap.geo import GeoFrame
 from featmap.io.sim_truth import is_truth_folder
@@ -96,8 +96,9 @@ class SimulatorTruth:
 
 
 class Footprints:
-    """Building footprints given in ``evaluation.footprints``, observed by the run's scan points
-    (:func:`featmap.evaluation.references.observe_walls`; without points every wall counts as observable)."""
+    """Building footprints given in ``evaluation.footprints``: the walls near the run's scan points, with
+    what the scans observed of them (:func:`featmap.evaluation.references.observed_footprints`); without
+    points every wall, observable whole."""
 
     name = "footprints"
 
@@ -110,7 +111,7 @@ class Footprints:
         path = Path(context.config.footprints).expanduser().resolve()
         truth = truth_from_footprints(path, context.geo_frame)
         if context.points is not None:
-            truth = observe_walls(truth, context.points, context.point_scans)
+            truth = observed_footprints(truth, context.points, context.point_scans)
         return Reference(truth, str(path))
 
     def score(self, reference: Reference, fused: np.ndarray) -> dict:

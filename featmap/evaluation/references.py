@@ -2,8 +2,9 @@
 
 - a simulated drive's ``truth/`` folder (walls with what the drive observed of them);
 - building footprints in a GeoJSON file (e.g. OpenStreetMap). They carry no observation record: a run
-  observes them with its scans' structure points (:func:`observe_walls`; the stretches of a footprint edge
-  that the scans' points lie on) and writes that record beside its map (``footprint_walls.csv``), which
+  keeps the walls near its scans and observes them with its scans' structure points
+  (:func:`observed_footprints`: the stretches of a footprint edge that the scans' points lie on), and
+  writes those walls and that record beside its map (``footprint_walls.csv``), which
   :func:`footprints_truth` reads back. Without it every wall counts as observable over its whole length,
   and recall is a lower bound.
 
@@ -17,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from featmap.errors import ConfigError, InputFileError
-from featmap.evaluation.truth_metrics import MIN_OBSERVED_M, TOL_M, GroundTruth
+from featmap.evaluation.truth_metrics import MIN_OBSERVED_M, TOL_M, GroundTruth, walls_near
 from featmap.geo import GeoFrame, reproject, reproject_segments
 from featmap.io.geojson import features_of, wgs84_position
 from featmap.io.jsonfile import read_json
@@ -74,6 +75,11 @@ def load_simulator_truth(truth_dir: str | Path, frame: GeoFrame | None = None,
                        n_returns=n_returns, other_segments=other, poles=poles)
 
 
+CLOSED_RING_DEG = 1e-7
+"""A ring whose last position lies this close to its first (about a centimetre) is closed: its last position
+is the first again, not a vertex of its own."""
+
+
 def truth_from_footprints(path: str | Path, frame: GeoFrame) -> GroundTruth:
     """Building footprints from a GeoJSON FeatureCollection (WGS84 Polygons), every wall fully observable.
 
@@ -81,7 +87,7 @@ def truth_from_footprints(path: str | Path, frame: GeoFrame) -> GroundTruth:
     object, or whose ``geometry`` or ``properties`` is neither an object nor null, is a one-line error.
     """
     path = Path(path)
-    walls, building, labels = [], [], []
+    rings, ring_building, ring_labels = [], [], []
     for n, feat in enumerate(features_of(path, read_json(path), "a GeoJSON FeatureCollection of building Polygons")):
         geom = feat.get("geometry") or {}
         props = feat.get("properties") or {}
@@ -94,26 +100,36 @@ def truth_from_footprints(path: str | Path, frame: GeoFrame) -> GroundTruth:
             raise InputFileError(path, f"feature {n}: a {geom['type']}'s coordinates must be nested lists of rings")
         vlabels = props.get("vertex_labels") or []
         vlabels = vlabels if isinstance(vlabels, list) else []
-        for rings in polys:
-            for r_index, ring in enumerate(rings):
-                ring = np.asarray([wgs84_position(v, path, n) for v in ring], float).reshape(-1, 2)
-                if len(ring) > 1 and np.allclose(ring[0], ring[-1]):
+        for polygon in polys:
+            for r_index, ring in enumerate(polygon):
+                ring = [wgs84_position(v, path, n) for v in ring]
+                if len(ring) > 1 and abs(ring[0][0] - ring[-1][0]) <= CLOSED_RING_DEG \
+                        and abs(ring[0][1] - ring[-1][1]) <= CLOSED_RING_DEG:
                     ring = ring[:-1]
                 if len(ring) < 2:
                     continue
-                x, y = frame.to_local(ring[:, 1], ring[:, 0])
-                pts = np.column_stack([x, y])
-                for k in range(len(pts)):
-                    walls.append(np.concatenate([pts[k], pts[(k + 1) % len(pts)]]))
-                    building.append(str(props.get("id", n)))
-                    lab = vlabels if (r_index == 0 and len(vlabels) == len(pts)) else [""] * len(pts)
-                    labels.append([lab[k], lab[(k + 1) % len(pts)]])
-    if not walls:
+                rings.append(ring)
+                ring_building.append(str(props.get("id", n)))
+                ring_labels.append(vlabels if (r_index == 0 and len(vlabels) == len(ring)) else None)
+    if not rings:
         raise InputFileError(path, "no building Polygon in the FeatureCollection: nothing to score against")
-    walls = np.asarray(walls, float).reshape(-1, 4)
+    # every ring's vertices at once: wall k of a ring runs from its vertex k to vertex k + 1 (the last to the first)
+    counts = np.array([len(r) for r in rings])
+    lonlat = np.array([v for r in rings for v in r], float).reshape(-1, 2)
+    x, y = frame.to_local(lonlat[:, 1], lonlat[:, 0])
+    points = np.column_stack([x, y])
+    first = np.repeat(np.cumsum(counts) - counts, counts)
+    size = np.repeat(counts, counts)
+    following = first + (np.arange(len(points)) - first + 1) % size
+    walls = np.column_stack([points, points[following]])
+    labels = np.full((len(walls), 2), "", dtype=object)
+    for ring, start, count in zip(ring_labels, np.cumsum(counts) - counts, counts):
+        if ring is not None:
+            labels[start:start + count] = [[ring[k], ring[(k + 1) % count]] for k in range(count)]
     lengths = np.hypot(walls[:, 2] - walls[:, 0], walls[:, 3] - walls[:, 1])
-    return GroundTruth(walls=walls, building=np.asarray(building), labels=np.asarray(labels).reshape(-1, 2),
-                       observed=[[(0.0, float(L))] for L in lengths], n_returns=np.full(len(walls), -1))
+    return GroundTruth(walls=walls, building=np.repeat(np.asarray(ring_building), counts),
+                       labels=labels.astype(str), observed=[[(0.0, float(L))] for L in lengths],
+                       n_returns=np.full(len(walls), -1))
 
 
 VIEW_POINTS_PER_BIN = 2
@@ -152,11 +168,12 @@ def observe_walls(truth: GroundTruth, points: np.ndarray, scans: np.ndarray | No
     finite = np.isfinite(points).all(axis=1)
     points, scans = points[finite], scans[finite]
     tree = cKDTree(points) if len(points) else None
+    near_any = walls_near(truth.walls, points, tol_m)
     observed = []
-    for wall in np.asarray(truth.walls, float):
+    for wall, reached in zip(np.asarray(truth.walls, float), near_any):
         p, q = wall[:2], wall[2:]
         length = float(np.hypot(*(q - p)))
-        if tree is None or length == 0:
+        if not reached or length == 0:
             observed.append([])
             continue
         u = (q - p) / length
@@ -177,26 +194,60 @@ def observe_walls(truth: GroundTruth, points: np.ndarray, scans: np.ndarray | No
                        poles=truth.poles)
 
 
+FOOTPRINT_REACH_M = 10.0
+"""Footprint walls farther than this from every scan point are left out of a run's reference: the drive
+saw none of them, and no map made from its scans (whose features lie along the points they were fitted
+to) has a feature within the metric's 0.3 m of them. A city-wide footprints file scores as fast as the
+drive's own area."""
+
+
+def crop_walls(truth: GroundTruth, keep: np.ndarray) -> GroundTruth:
+    """The walls of ``truth`` where the (W,) mask ``keep`` is set, with their records."""
+    keep = np.asarray(keep, bool)
+    return GroundTruth(walls=truth.walls[keep], building=truth.building[keep], labels=truth.labels[keep],
+                       observed=[iv for iv, k in zip(truth.observed, keep) if k],
+                       n_returns=np.asarray(truth.n_returns)[keep], other_segments=truth.other_segments,
+                       poles=truth.poles)
+
+
 def observation_record(truth: GroundTruth) -> TruthWalls:
     """The walls and observation record of ``truth`` as ``walls.csv`` holds them."""
     return TruthWalls(truth.walls, truth.building, truth.labels, np.asarray(truth.n_returns, np.int64), truth.observed)
 
 
-def footprints_truth(path: str | Path, frame: GeoFrame, run_dir: str | Path | None = None) -> GroundTruth:
-    """Building footprints as a run scored them: with the observation record the run in ``run_dir`` wrote
-    (``footprint_walls.csv``) when it holds these very walls, else every wall observable.
+def observed_footprints(truth: GroundTruth, points: np.ndarray, scans: np.ndarray | None = None) -> GroundTruth:
+    """Footprint walls as a run scores them: those within ``FOOTPRINT_REACH_M`` of its scan points, with
+    what the scans observed of them (:func:`observe_walls`; ``points`` (P, 2), ``scans`` (P,) as there)."""
+    cropped = crop_walls(truth, walls_near(truth.walls, points, FOOTPRINT_REACH_M))
+    return observe_walls(cropped, points, scans)
+
+
+def footprints_truth(path: str | Path, frame: GeoFrame, run_dir: str | Path | None = None,
+                     run_frame: GeoFrame | None = None) -> GroundTruth:
+    """Building footprints as a run scored them, in ``frame``: the walls and observation record that the run
+    (or batch merge) in ``run_dir`` wrote (``footprint_walls.csv``, :func:`observed_footprints`; in its
+    local frame ``run_frame``, default ``frame``), else every wall of the footprints, observable whole (a
+    run made before runs kept a record, or none given).
 
     Raises:
-        InputFileError: the footprints, or the record, are unreadable.
+        InputFileError: the footprints or the record are unreadable, or the record holds walls that are not
+            walls of these footprints (they changed since the run: its record is not theirs).
     """
-    truth = truth_from_footprints(path, frame)
+    from scipy.spatial import cKDTree
+
     record_path = None if run_dir is None else Path(run_dir) / FOOTPRINT_WALLS_FILE
     if record_path is None or not record_path.is_file():
-        return truth
+        return truth_from_footprints(path, frame)
+    run_frame = run_frame or frame
     record = read_walls_csv(record_path)
-    if record.walls.shape != truth.walls.shape or not np.allclose(record.walls, truth.walls, atol=1e-3):
-        return truth            # the footprints changed since the run: its record is not theirs
-    return GroundTruth(walls=truth.walls, building=truth.building, labels=truth.labels, observed=record.observed,
+    if len(record.walls):
+        walls = truth_from_footprints(path, run_frame).walls
+        distance, _ = cKDTree(walls).query(record.walls)
+        if not (distance <= 1e-3).all():
+            raise InputFileError(record_path, f"holds walls that {path} does not have (changed since the run?): "
+                                              "run again to score against it, or delete this file to count every wall")
+    walls = record.walls if run_frame == frame else reproject_segments(record.walls, run_frame, frame)
+    return GroundTruth(walls=walls, building=record.building, labels=record.labels, observed=record.observed,
                        n_returns=record.n_returns)
 
 

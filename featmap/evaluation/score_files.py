@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,16 +25,40 @@ def parse_origin(origin: str) -> GeoFrame:
         raise FeatmapError(f"--origin {origin!r}: {exc}") from None
 
 
-def _local_frame(fused: Path, origin: str | None) -> GeoFrame | None:
-    """The local frame to score ``fused`` in: ``--origin``, else its run's (metrics.json beside it), else None."""
+@dataclass(frozen=True)
+class _MapOrigin:
+    """What the folder a fused map lies in says about it: its run's (``metrics.json``) or batch merge's
+    (``merged.json``) local frame, the references it was scored against (name -> absolute path) and, for a
+    run, the frames it processed."""
+
+    folder: Path
+    frame: GeoFrame | None
+    references: dict[str, Path]
+    frames: list[int] | None = None
+
+
+def _map_origin(fused: Path, strict: bool) -> _MapOrigin | None:
+    """The run or batch merge ``fused`` was written by, or None when its folder holds neither record (or,
+    unless ``strict``, an unreadable one: a map file can be scored without it)."""
+    from featmap.io.batch_records import read_merged_record
     from featmap.io.run_metrics import read_run_metrics
 
-    if origin is not None:
-        return parse_origin(origin)
-    metrics = fused.parent / "metrics.json"
-    if metrics.exists():
-        geo = read_run_metrics(metrics).geo_frame
-        return geo.frame() if geo is not None else None
+    folder = fused.parent
+    try:
+        if (folder / "metrics.json").exists():
+            meta = read_run_metrics(folder / "metrics.json")
+            references = {name: meta.reference_path(name, folder) for name in meta.references}
+            return _MapOrigin(folder, meta.geo_frame.frame() if meta.geo_frame is not None else None,
+                              {k: v.resolve() for k, v in references.items() if v is not None},
+                              meta.source.frames_processed)
+        if (folder / "merged.json").exists():
+            merged = read_merged_record(folder / "merged.json")
+            single = merged.evaluator is not None and merged.reference is not None and ";" not in merged.reference
+            return _MapOrigin(folder, merged.geo_frame.frame() if merged.geo_frame is not None else None,
+                              {merged.evaluator: Path(merged.reference).resolve()} if single else {})
+    except FeatmapError:
+        if strict:
+            raise
     return None
 
 
@@ -50,18 +75,26 @@ def evaluate_file(fused: str | Path, truth: str | Path, origin: str | None = Non
         raise InputFileError(truth, "ground truth not found")
     if truth.is_dir() and not is_truth_folder(truth):
         raise InputFileError(truth, "not a simulated drive's truth/ folder (walls.csv and simulation.json expected)")
-    if fused.suffix.lower() in (".geojson", ".json"):        # WGS84: scored in its run's frame where it has one
-        frame = _local_frame(fused, origin) or (first_position(truth) if truth.is_file() else simulation_frame(truth))
+    geojson = fused.suffix.lower() in (".geojson", ".json")
+    run = _map_origin(fused, strict=not geojson and origin is None)
+    if geojson:                                  # WGS84: scored in its run's frame where it has one
+        frame = (run.frame if run is not None and run.frame is not None else parse_origin(origin) if origin
+                 else first_position(truth) if truth.is_file() else simulation_frame(truth))
         segments, _ = read_segments_geojson(fused, frame)
     else:
-        frame = _local_frame(fused, origin)
+        frame = parse_origin(origin) if origin is not None else run.frame if run is not None else None
         segments, _ = read_fused_csv(fused)
         if frame is None and truth.is_file():
-            raise FeatmapError(f"{fused}: a CSV is in a local frame; give --origin LAT,LON or keep it next to its metrics.json")
+            raise FeatmapError(f"{fused}: a CSV is in a local frame; give --origin LAT,LON or keep it next to its "
+                               "metrics.json")
     _check_scored_length(fused, segments, "segments", "is it one drive's map?")
-    gt = (load_simulator_truth(truth, frame, _frames_of_run(fused, truth)) if truth.is_dir()
-          else footprints_truth(truth, frame, _run_scored_against(fused, truth, "footprints")))
-    _check_scored_length(truth, gt.walls, "walls", "crop it to the drive's area")
+    own = run is not None and truth.resolve() in run.references.values()
+    if truth.is_dir():              # a run of selected frames is scored on what those frames observed
+        gt = load_simulator_truth(truth, frame, run.frames if own else None)
+    else:
+        gt = footprints_truth(truth, frame, run.folder if own else None, run.frame if own else None)
+    _check_scored_length(truth, gt.walls, "walls", "crop it to the drive's area, or score the run with it "
+                         "(--set evaluation.footprints=FILE): a run keeps only the walls near its scans")
     return truth_metrics(segments, gt)
 
 
@@ -71,24 +104,3 @@ def _check_scored_length(path: Path, segments: np.ndarray, what: str, advice: st
     if total > MAX_SCORED_LENGTH_M:
         raise InputFileError(path, f"its {what} are {total / 1e3:,.0f} km long in total, more than one scoring holds "
                                    f"({MAX_SCORED_LENGTH_M / 1e3:,.0f} km at {100 * STEP_M:.0f} cm samples): {advice}")
-
-
-def _run_scored_against(fused: Path, truth: Path, reference: str) -> Path | None:
-    """The run folder ``fused`` lies in, when that run was scored against ``truth`` as its ``reference``
-    (``truth`` or ``footprints``); else None."""
-    from featmap.io.run_metrics import read_run_metrics
-
-    metrics = fused.parent / "metrics.json"
-    if not metrics.exists():
-        return None
-    own = read_run_metrics(metrics).reference_path(reference, fused.parent)
-    return fused.parent if own is not None and own.resolve() == truth.resolve() else None
-
-
-def _frames_of_run(fused: Path, truth: Path) -> list[int] | None:
-    """The frames the run beside ``fused`` was made from, when it was scored against this ``truth`` folder
-    (a run of selected frames observed only part of the drive's walls); None: every frame."""
-    from featmap.io.run_metrics import read_run_metrics
-
-    run_dir = _run_scored_against(fused, truth, "truth")
-    return None if run_dir is None else read_run_metrics(run_dir / "metrics.json").source.frames_processed

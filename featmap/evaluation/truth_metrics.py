@@ -87,6 +87,21 @@ def lies_on(points: np.ndarray, directions: np.ndarray, segment: np.ndarray,
     return ok, perp
 
 
+def walls_near(walls: np.ndarray, points: np.ndarray, reach_m: float) -> np.ndarray:
+    """(W,) which of the walls (W, 4) have one of the (P, 2) points within about ``reach_m`` of them: at least
+    every wall with a point closer than ``reach_m`` (a KD-tree query around each wall's centre)."""
+    from scipy.spatial import cKDTree
+
+    walls = np.asarray(walls, float).reshape(-1, 4)
+    points = np.asarray(points, float).reshape(-1, 2)
+    points = points[np.isfinite(points).all(axis=1)]
+    if not len(walls) or not len(points):
+        return np.zeros(len(walls), bool)
+    centres = (walls[:, :2] + walls[:, 2:]) / 2
+    half = np.hypot(walls[:, 2] - walls[:, 0], walls[:, 3] - walls[:, 1]) / 2
+    return cKDTree(points).query_ball_point(centres, half + reach_m, return_length=True) > 0
+
+
 def observed_samples(truth: GroundTruth, walls_mask: np.ndarray, step: float = STEP_M):
     """Samples along the observed parts of the selected walls: (points (S, 2), wall index (S,), weight (S,))."""
     pts, owner, weight = [], [], []
@@ -121,8 +136,8 @@ def truth_metrics(fused: np.ndarray, truth: GroundTruth) -> dict:
     sdir = segment_directions(fused)[owner] if len(fused) else np.zeros((0, 2))
     best = np.full(len(samples), np.inf)
     best_wall = np.full(len(samples), -1)
-    for w, wall in enumerate(truth.walls):
-        ok, perp = lies_on(samples, sdir, wall)
+    for w in np.flatnonzero(walls_near(truth.walls, samples, 2 * TOL_M)):    # (no other wall can hold a sample)
+        ok, perp = lies_on(samples, sdir, truth.walls[w])
         better = ok & (perp < best)
         best[better] = perp[better]
         best_wall[better] = w

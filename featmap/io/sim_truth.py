@@ -94,6 +94,10 @@ def read_walls_csv(path: str | Path) -> TruthWalls:
         except (TypeError, ValueError):
             raise InputFileError(path, "malformed row (numbers expected in x1,y1,x2,y2,n_returns,observed_intervals)",
                                  line=n) from None
+        if not all(len(iv) == 2 and math.isfinite(iv[0]) and math.isfinite(iv[1]) and 0 <= iv[0] <= iv[1]
+                   for iv in intervals):
+            raise InputFileError(path, "observed_intervals must be START-END pairs of metres along the wall "
+                                       "(0 <= START <= END) joined by ';'", line=n)
         if not all(math.isfinite(c) for c in coords):
             raise InputFileError(path, "wall coordinates must be finite numbers", line=n)
         walls.append(coords)
@@ -112,8 +116,8 @@ def write_walls_csv(path: str | Path, walls: TruthWalls) -> None:
     writer.writerow(WALL_COLUMNS)
     for w in range(len(walls.walls)):
         x1, y1, x2, y2 = walls.walls[w]
-        writer.writerow([walls.building[w], f"{x1:.4f}", f"{y1:.4f}", f"{x2:.4f}", f"{y2:.4f}", *walls.labels[w],
-                         int(walls.n_returns[w]), ";".join(f"{a:.2f}-{b:.2f}" for a, b in walls.observed[w])])
+        writer.writerow([walls.building[w], f"{x1:.6f}", f"{y1:.6f}", f"{x2:.6f}", f"{y2:.6f}", *walls.labels[w],
+                         int(walls.n_returns[w]), ";".join(f"{a:.6f}-{b:.6f}" for a, b in walls.observed[w])])
     atomic_write_text(path, buf.getvalue())
 
 

@@ -54,8 +54,9 @@ class RunProducts:
         source_poses: (F, 4, 4) the poses as the source gave them (None: the same as ``poses``).
         corrections: (F, 3) per-scan pose corrections ``dx, dy`` (m) and ``dyaw`` (rad) of the refinement
             (:mod:`featmap.refinement.base`), or None when no refinement ran.
-        footprints: the building footprints the run was scored against with what its scans observed of
-            them (walls.csv's record, :class:`featmap.io.sim_truth.TruthWalls`), or None.
+        footprints: the building footprint walls the run was scored against (those near its scans) with
+            what its scans observed of them, as ``footprint_walls.csv`` holds them
+            (:class:`featmap.io.sim_truth.TruthWalls`), or None.
     """
 
     table: SegmentTable

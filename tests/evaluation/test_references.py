@@ -9,9 +9,9 @@ from featmap.errors import InputFileError
 from featmap.evaluation import EvaluationConfig, EvaluationContext
 from featmap.evaluation.plugins import Footprints, SimulatorTruth
 from featmap.evaluation.references import (footprints_truth, load_simulator_truth, observation_record, observe_walls,
-                                          truth_from_footprints)
+                                          observed_footprints, truth_from_footprints)
 from featmap.evaluation.truth_metrics import truth_metrics
-from featmap.io.sim_truth import FOOTPRINT_WALLS_FILE, read_walls_csv, write_walls_csv
+from featmap.io.sim_truth import FOOTPRINT_WALLS_FILE, write_walls_csv
 from featmap.geo import GeoFrame
 
 FRAME = GeoFrame(49.011, 8.424)
@@ -183,19 +183,51 @@ def test_a_footprint_wall_is_observed_by_scans_that_each_see_two_metres_of_it(tm
         observe_walls(truth, sparse, np.zeros(3))
 
 
-def test_a_runs_footprint_record_is_read_back_only_for_the_same_footprints(tmp_path):
+def test_a_runs_footprint_record_is_read_back_for_its_footprints_and_refused_for_others(tmp_path):
+    """The record a run writes (the walls near its scans and what they observed) is what evaluate scores
+    the run's maps on, in any local frame; footprints that no longer hold its walls are a one-line error;
+    a damaged interval too."""
     rng = np.random.default_rng(1)
     path = _write(tmp_path, [{"type": "Feature", "properties": {"id": "A"},
-                              "geometry": {"type": "Polygon", "coordinates": [_square(FRAME)]}}])
-    observed = observe_walls(truth_from_footprints(path, FRAME), _wall_points(rng, 2.0, 7.0, 0.0, 400))
+                              "geometry": {"type": "Polygon", "coordinates": [_square(FRAME)]}},
+                             {"type": "Feature", "properties": {"id": "far"},
+                              "geometry": {"type": "Polygon", "coordinates": [_square(FRAME, 500, 500)]}}])
+    observed = observed_footprints(truth_from_footprints(path, FRAME), _wall_points(rng, 2.0, 7.0, 0.0, 400))
+    assert observed.building.tolist() == ["A"] * 4                            # the far building is left out
     run = tmp_path / "run"
     write_walls_csv(run / FOOTPRINT_WALLS_FILE, observation_record(observed))
-    record = read_walls_csv(run / FOOTPRINT_WALLS_FILE)
-    assert record.n_returns.tolist() == observed.n_returns.tolist() and record.building.tolist() == ["A"] * 4
     back = footprints_truth(path, FRAME, run)
-    assert back.observable().tolist() == observed.observable().tolist()
-    assert [[(round(a, 2), round(b, 2)) for a, b in iv] for iv in observed.observed] == back.observed
-    assert footprints_truth(path, FRAME).observable().all()                   # no run: every wall
+    assert back.observable().tolist() == observed.observable().tolist() and back.building.tolist() == ["A"] * 4
+    assert np.allclose(back.walls, observed.walls, atol=1e-6)
+    assert back.observed == [[(pytest.approx(a, abs=1e-6), pytest.approx(b, abs=1e-6)) for a, b in iv]
+                             for iv in observed.observed]
+    other = GeoFrame(49.012, 8.425)                                          # scored in another local frame
+    moved_frame = footprints_truth(path, other, run, FRAME)
+    assert np.allclose(moved_frame.walls, truth_from_footprints(path, other).walls[:4], atol=1e-3)
+    assert footprints_truth(path, FRAME).observable().all() and len(footprints_truth(path, FRAME).walls) == 8
     moved = _write(tmp_path, [{"type": "Feature", "properties": {"id": "A"},
                                "geometry": {"type": "Polygon", "coordinates": [_square(FRAME, 0.5)]}}])
-    assert footprints_truth(moved, FRAME, run).observable().all()             # not the footprints the run observed
+    with pytest.raises(InputFileError, match=r"footprint_walls.csv: holds walls that .*fp.geojson does not have"):
+        footprints_truth(moved, FRAME, run)
+    text = (run / FOOTPRINT_WALLS_FILE).read_text().splitlines()
+    for bad in ("5.0", "1-2-3", "nan-inf", "3-2"):
+        row = text[1].split(",")
+        row[-1] = bad
+        (run / FOOTPRINT_WALLS_FILE).write_text("\n".join([text[0], ",".join(row), *text[2:]]) + "\n")
+        with pytest.raises(InputFileError, match=r"footprint_walls.csv:2: observed_intervals must be START-END"):
+            footprints_truth(path, FRAME, run)
+
+
+def test_a_ring_is_closed_only_by_repeating_its_first_position(tmp_path):
+    """An open ring whose last vertex lies 2 m from its first keeps that vertex: five walls, not four."""
+    ring = _square(FRAME)[:4]
+    lat, lon = FRAME.to_wgs84(np.array([2.0]), np.array([0.0]))
+    open_ring = ring + [[float(lon[0]), float(lat[0])]]
+    closed = truth_from_footprints(_write(tmp_path, [{"type": "Feature", "properties": {},
+                                                      "geometry": {"type": "Polygon", "coordinates": [_square(FRAME)]}}]),
+                                   FRAME)
+    opened = truth_from_footprints(_write(tmp_path, [{"type": "Feature", "properties": {},
+                                                      "geometry": {"type": "Polygon", "coordinates": [open_ring]}}]),
+                                   FRAME)
+    assert len(closed.walls) == 4 and len(opened.walls) == 5
+    assert np.allclose(opened.walls[-1], [2.0, 0.0, 0.0, 0.0], atol=1e-3)

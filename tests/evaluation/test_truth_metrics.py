@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from featmap.evaluation.truth_metrics import GroundTruth, lies_on, sample_segments, truth_metrics
+from featmap.evaluation.truth_metrics import GroundTruth, lies_on, sample_segments, truth_metrics, walls_near
 
 WALLS = np.array([[0, 0, 20, 0], [20, 0, 20, 10], [20, 10, 0, 10], [0, 10, 0, 0]], float)
 LABELS = np.array([["a", "b"], ["b", "c"], ["c", "d"], ["d", "a"]])
@@ -89,3 +89,21 @@ def test_sampling_and_lies_on():
     ok, perp = lies_on(np.array([[5, 0.2], [5, 0.35], [-0.25, 0], [-0.4, 0]]), np.tile([1.0, 0.0], (4, 1)),
                        np.array([0, 0, 20, 0.0]))
     assert ok.tolist() == [True, False, True, False] and perp[0] == pytest.approx(0.2)
+
+
+def test_walls_far_from_every_feature_change_no_score():
+    """Precision only looks at the walls a feature comes near (``walls_near``): the same building among
+    2,000 unobserved walls 50 m-2 km away, or a wall just within the tolerance, gives the same scores."""
+    rng = np.random.default_rng(0)
+    start = rng.uniform(50, 2000, (2000, 2)) * rng.choice([-1, 1], (2000, 2))
+    far = np.column_stack([start, start + rng.uniform(-20, 20, (2000, 2))])
+    base = _truth()
+    crowded = GroundTruth(walls=np.concatenate([WALLS, far]), building=np.array(["A"] * 4 + ["B"] * 2000),
+                          labels=np.concatenate([LABELS, np.full((2000, 2), "")]),
+                          observed=base.observed + [[]] * 2000, n_returns=np.concatenate([base.n_returns, [0] * 2000]))
+    fused = np.array([[0, 0.1, 20, 0.1], [20.2, 0, 20.2, 10], [5, 10.29, 15, 10.29], [-3, 3, -3, 8]])
+    assert truth_metrics(fused, crowded) == truth_metrics(fused, base)
+    # (a circle around each wall's centre: the wall's half length plus the reach)
+    assert walls_near(WALLS, np.array([[10.0, -10.31]]), 0.3).tolist() == [False, False, False, False]
+    assert walls_near(WALLS, np.array([[20.29, 5.0]]), 0.3).tolist() == [False, True, False, False]
+    assert walls_near(WALLS, np.zeros((0, 2)), 0.3).tolist() == [False] * 4

@@ -12,6 +12,7 @@ from featmap.cli import app
 from featmap.datasets import KittiRawDataset
 from featmap.errors import DatasetError
 from featmap.io.run_metrics import read_run_metrics, write_run_metrics
+from featmap.io.sim_truth import read_walls_csv
 from featmap.pipeline import MappingPipeline, SegmentStore, load_config
 from featmap.reporting import RecordingReporter
 from featmap.pipeline.run_folder import MANIFEST
@@ -201,6 +202,23 @@ def test_footprints_from_the_config_score_a_run_on_the_walls_its_scans_saw(run_c
                     "grid: {fusion.proposed.gamma: [0.5]}\n")
     rows, _ = run_sweep_file(spec, tmp_path / "sweep")
     assert rows[0]["count_ratio"] == pytest.approx(rows[0]["count"] / 2)
+    # a town's footprints around the drive's: the run keeps the walls near its scans, and scores the same
+    town = json.loads(footprints.read_text())
+    lon0, lat0 = town["features"][0]["geometry"]["coordinates"][0][0]
+    for k in range(400):
+        x, y = 1e-3 * (k % 20 - 10) + 3e-4, 1e-3 * (k // 20 - 10) + 3e-4      # every ~100 m, none on the drive's
+        square = [[lon0 + x, lat0 + y], [lon0 + x + 1e-4, lat0 + y], [lon0 + x + 1e-4, lat0 + y + 1e-4],
+                  [lon0 + x, lat0 + y + 1e-4], [lon0 + x, lat0 + y]]
+        town["features"].append({"type": "Feature", "properties": {"id": f"t{k}"},
+                                 "geometry": {"type": "Polygon", "coordinates": [square]}})
+    (tmp_path / "town.geojson").write_text(json.dumps(town))
+    in_town = run_case1([f"evaluation.footprints={tmp_path / 'town.geojson'}"], out=tmp_path / "town_run").metrics
+    assert in_town.methods["proposed"].scores["footprints"] == fp
+    kept = read_walls_csv(tmp_path / "town_run" / "footprint_walls.csv")
+    assert set(kept.building) <= {f["properties"].get("id", "") for f in json.loads(footprints.read_text())["features"]}
+    res = runner.invoke(app, ["evaluate", str(tmp_path / "town_run" / "fused_proposed.csv"), "--truth",
+                              str(tmp_path / "town.geojson"), "--out", str(tmp_path / "m.json")])
+    assert res.exit_code == 0 and json.loads((tmp_path / "m.json").read_text())["recall"] == pytest.approx(fp["recall"])
     other = tmp_path / "copy.geojson"                       # the same footprints elsewhere: not the run's
     other.write_text(footprints.read_text())
     res = runner.invoke(app, ["evaluate", str(tmp_path / "run" / "fused_proposed.csv"), "--truth", str(other),
