@@ -741,16 +741,16 @@ def merged_reference(inputs: MergedInputs, evaluation=None, cache_dir: str | Pat
     The drives' simulator truths united in the merged frame when every drive has one; otherwise, with the
     ``evaluation:`` section given, what a run of its own would be scored against: building footprints
     (``evaluation.footprints``, when the merged frame has a geo origin), else the truth-free map metric.
-    The footprints come with what the drives observed of them: their runs' records united
-    (:func:`drive_footprints`), else observed anew by every drive's scan points (``merged_points``, from
-    the segment cache in ``cache_dir``), which are also the map metric's reference. Without either every
-    footprint wall counts as observable, and there is no map metric.
+    The footprints come with what the drives observed of them (:func:`merged_footprints`: their runs'
+    records, or their scan points read again from the segment cache in ``cache_dir``); every drive's scan
+    points (``merged_points``) are also the map metric's reference. Without ``cache_dir``, footprints of a
+    drive that kept no record count every wall as observable, and there is no map metric.
 
     Raises:
         FeatmapError: a drive's scans cannot be read again (moved, changed).
     """
     from featmap.evaluation import EvaluationContext, Reference
-    from featmap.evaluation.plugins import SimulatorTruth
+    from featmap.evaluation.plugins import Footprints, SimulatorTruth
     from featmap.evaluation.references import load_simulator_truth, merge_truths
     from featmap.pipeline.run import primary_reference
 
@@ -762,39 +762,49 @@ def merged_reference(inputs: MergedInputs, evaluation=None, cache_dir: str | Pat
     if evaluation is None:
         return None
     if evaluation.footprints is not None and inputs.frame is not None:
-        united = drive_footprints(inputs, Path(evaluation.footprints).expanduser().resolve())
+        footprints = Path(evaluation.footprints).expanduser().resolve()
+        united = merged_footprints(inputs, footprints, cache_dir)
         if united is not None:
-            return united
+            return Footprints(), Reference(united, str(footprints))
     context = EvaluationContext(None, None, inputs.frame, evaluation)
     found = None if cache_dir is None else merged_points(inputs, cache_dir)
-    if found is not None:           # footprints are observed by them; without footprints they are the reference
+    if found is not None:           # the map metric's reference
         context = replace(context, points=found[0], point_scans=found[1], raw_segments=inputs.table.segments)
     return primary_reference(context)
 
 
-def drive_footprints(inputs: MergedInputs, footprints: Path):
-    """(evaluator, Reference): the footprints as the drives' runs observed them (each run's
-    ``footprint_walls.csv``, united in the merged frame as the drives' simulator truths are), or None when
-    a drive's run was not scored against these footprints or kept no record of them.
+def merged_footprints(inputs: MergedInputs, footprints: Path, cache_dir: str | Path | None = None):
+    """The footprints as the merged map's drives observed them, in the merged frame, or None when that
+    cannot be known (a drive to read again without ``cache_dir``, or whose extractor gives no points).
+
+    Each drive contributes the record its run kept (``footprint_walls.csv``) when its run was scored
+    against these footprints and the drive was not moved by the alignment; otherwise its scan points,
+    read again and placed as its segments are (``merged_drive_points``), observe the footprints anew. The
+    drives' observations are united as their simulator truths are (:func:`merge_truths`).
 
     Raises:
-        InputFileError: a drive's record is unreadable or not of these footprints.
+        FeatmapError: a drive's record is unreadable or not of these footprints, or its scans cannot be read
+            again.
     """
-    from featmap.evaluation import Reference
-    from featmap.evaluation.plugins import Footprints
-    from featmap.evaluation.references import footprints_truth, merge_truths
+    from featmap.evaluation.references import footprints_truth, merge_truths, observed_footprints, truth_from_footprints
     from featmap.io.run_metrics import read_run_metrics
     from featmap.io.sim_truth import FOOTPRINT_WALLS_FILE
 
-    truths = []
-    for d in inputs.drives:
+    truths, whole = [], None
+    for k, d in enumerate(inputs.drives):
         run_dir = Path(d.run_dir)
         own = read_run_metrics(run_dir / "metrics.json").reference_path("footprints", run_dir)
-        if own is None or own.resolve() != footprints or not (run_dir / FOOTPRINT_WALLS_FILE).is_file():
+        moved = inputs.alignment is not None and bool(inputs.alignment.corrections[k].any())
+        if own is not None and own.resolve() == footprints and (run_dir / FOOTPRINT_WALLS_FILE).is_file() and not moved:
+            truths.append(footprints_truth(footprints, inputs.frame, run_dir,
+                                           d.geo_frame.frame() if d.geo_frame is not None else None))
+            continue
+        found = None if cache_dir is None else merged_drive_points(inputs, k, cache_dir)
+        if found is None:
             return None
-        truths.append(footprints_truth(footprints, inputs.frame, run_dir,
-                                       d.geo_frame.frame() if d.geo_frame is not None else None))
-    return Footprints(), Reference(merge_truths(truths), str(footprints))
+        whole = whole if whole is not None else truth_from_footprints(footprints, inputs.frame)
+        truths.append(observed_footprints(whole, *found))
+    return merge_truths(truths)
 
 
 def drive_points(run_dir: str | Path, cache_dir: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
@@ -836,25 +846,31 @@ def drive_points(run_dir: str | Path, cache_dir: str | Path) -> tuple[np.ndarray
     return None if points is None else (points, extraction.world_point_scans())
 
 
-def merged_points(inputs: MergedInputs, cache_dir: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
-    """(points (P, 2), merged scan ids (P,)): every drive's scan points (``drive_points``) in the merged
-    frame (aligned as the drives' segments are), with the scan ids of the merged segments (a drive's
-    ``scan_offset`` + frame), or None when a drive has none."""
+def merged_drive_points(inputs: MergedInputs, k: int, cache_dir: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """(points (P, 2), merged scan ids (P,)): drive ``k``'s scan points (``drive_points``) in the merged
+    frame, aligned as its segments are, with the scan ids of the merged segments (its ``scan_offset`` +
+    frame), or None when its extractor gives none."""
     from featmap.geo import reproject
 
-    parts, scans = [], []
-    for k, d in enumerate(inputs.drives):
-        found = drive_points(d.run_dir, cache_dir)
-        if found is None:
-            return None
-        points, frames = found
-        scans.append(d.scan_offset + frames)
-        if inputs.frame is not None and d.geo_frame is not None:
-            points = reproject(points, d.geo_frame.frame(), inputs.frame)
-        if inputs.alignment is not None:
-            points = inputs.alignment.points(points, k)
-        parts.append(points)
-    return (np.concatenate(parts), np.concatenate(scans)) if parts else None
+    d = inputs.drives[k]
+    found = drive_points(d.run_dir, cache_dir)
+    if found is None:
+        return None
+    points, frames = found
+    if inputs.frame is not None and d.geo_frame is not None:
+        points = reproject(points, d.geo_frame.frame(), inputs.frame)
+    if inputs.alignment is not None:
+        points = inputs.alignment.points(points, k)
+    return points, d.scan_offset + frames
+
+
+def merged_points(inputs: MergedInputs, cache_dir: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """(points (P, 2), merged scan ids (P,)): every drive's scan points (:func:`merged_drive_points`), or
+    None when a drive has none."""
+    parts = [merged_drive_points(inputs, k, cache_dir) for k in range(len(inputs.drives))]
+    if not parts or any(p is None for p in parts):
+        return None
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
 def drive_provenance(labels: np.ndarray, drive: np.ndarray, n_features: int) -> list[list[int]]:
@@ -930,7 +946,7 @@ def merge_task(run_dirs: list[tuple[str, str]], out: str, methods: tuple[str, ..
                               seconds=round(time.perf_counter() - start, 3))
         write_merged_record(folder.tmp / "merged.json", record)
         if reference is not None and reference[0].name == "footprints":
-            write_walls_csv(folder.tmp / FOOTPRINT_WALLS_FILE, observation_record(reference[1].data))
+            write_walls_csv(folder.tmp / FOOTPRINT_WALLS_FILE, observation_record(reference[1].data, reference[1].path))
         folder.commit()
     return record
 

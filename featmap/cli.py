@@ -401,7 +401,7 @@ def download(
 def evaluate(
     fused: Path = typer.Argument(..., help="fused_<method>.csv (local frame, next to its metrics.json) or .geojson (WGS84)."),
     truth: Path = typer.Option(..., "--truth", "-t", help="Building footprints (.geojson, WGS84) or a simulated drive's truth/ folder."),
-    origin: Optional[str] = typer.Option(None, "--origin", help="LAT,LON of the local frame to score in (default: the run's metrics.json beside FUSED; needed for a CSV without one)."),
+    origin: Optional[str] = typer.Option(None, "--origin", help="LAT,LON of a CSV's local frame (default: the run's metrics.json or the batch merge's merged.json beside it); a GeoJSON in a run's folder is scored in the run's frame."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Also write the metrics to this JSON file."),
 ):
     """Score any fused map against ground-truth footprints (the metrics of EVALUATION.md).

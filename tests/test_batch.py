@@ -663,7 +663,7 @@ def test_footprints_score_the_merged_map_on_what_the_drives_saw(first_batch, tmp
                                                                                           "footprints": str(footprints)}}))
         points, frames = drive_points(run, tmp / "cache")
         write_walls_csv(run / FOOTPRINT_WALLS_FILE, observation_record(
-            observed_footprints(truth_from_footprints(footprints, meta.geo_frame.frame()), points, frames)))
+            observed_footprints(truth_from_footprints(footprints, meta.geo_frame.frame()), points, frames), footprints))
         scored.append((d.name, str(run)))
     scored_inputs = merged_inputs(scored)
     scored_inputs = replace(scored_inputs, drives=[d.model_copy(update={"truth": None}) for d in scored_inputs.drives])
@@ -671,3 +671,17 @@ def test_footprints_score_the_merged_map_on_what_the_drives_saw(first_batch, tmp
     assert evaluator.name == "footprints"
     assert truth_metrics(fused, united.data)["observable_walls"] == observed["observable_walls"]
     assert truth_metrics(fused, united.data)["recall"] == pytest.approx(observed["recall"], abs=0.005)
+    # a drive without a record, and one the alignment moved, observe the footprints anew with their points
+    # (placed as their segments are); the others' records stand
+    from featmap.refinement.drives import DriveAlignment
+
+    read_again = []
+    real = batch.merged_drive_points
+    monkeypatch.setattr(batch, "merged_drive_points", lambda inputs, k, cache: read_again.append(k) or real(inputs, k, cache))
+    (Path(scored[2][1]) / FOOTPRINT_WALLS_FILE).unlink()
+    moved = DriveAlignment(np.array([[0.0, 0.0, 0.0], [0.4, 0.0, 0.0], [0.0, 0.0, 0.0]]), np.zeros((3, 2)), True, {})
+    batch.merged_footprints(replace(scored_inputs, alignment=moved), footprints, tmp / "cache")
+    assert read_again == [1, 2]
+    assert batch.merged_footprints(scored_inputs, footprints) is None                       # drive 2: no cache
+    unmoved = batch.merged_footprints(scored_inputs, footprints, tmp / "cache")
+    assert truth_metrics(fused, unmoved)["recall"] == pytest.approx(observed["recall"], abs=0.005)

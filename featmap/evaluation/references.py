@@ -75,11 +75,6 @@ def load_simulator_truth(truth_dir: str | Path, frame: GeoFrame | None = None,
                        n_returns=n_returns, other_segments=other, poles=poles)
 
 
-CLOSED_RING_DEG = 1e-7
-"""A ring whose last position lies this close to its first (about a centimetre) is closed: its last position
-is the first again, not a vertex of its own."""
-
-
 def truth_from_footprints(path: str | Path, frame: GeoFrame) -> GroundTruth:
     """Building footprints from a GeoJSON FeatureCollection (WGS84 Polygons), every wall fully observable.
 
@@ -103,8 +98,7 @@ def truth_from_footprints(path: str | Path, frame: GeoFrame) -> GroundTruth:
         for polygon in polys:
             for r_index, ring in enumerate(polygon):
                 ring = [wgs84_position(v, path, n) for v in ring]
-                if len(ring) > 1 and abs(ring[0][0] - ring[-1][0]) <= CLOSED_RING_DEG \
-                        and abs(ring[0][1] - ring[-1][1]) <= CLOSED_RING_DEG:
+                if len(ring) > 1 and ring[0] == ring[-1]:         # closed, as GeoJSON's rings are
                     ring = ring[:-1]
                 if len(ring) < 2:
                     continue
@@ -195,10 +189,10 @@ def observe_walls(truth: GroundTruth, points: np.ndarray, scans: np.ndarray | No
 
 
 FOOTPRINT_REACH_M = 10.0
-"""Footprint walls farther than this from every scan point are left out of a run's reference: the drive
-saw none of them, and no map made from its scans (whose features lie along the points they were fitted
-to) has a feature within the metric's 0.3 m of them. A city-wide footprints file scores as fast as the
-drive's own area."""
+"""Footprint walls that no scan point comes this close to are left out of a run's reference (the test,
+:func:`walls_near`, errs towards keeping a wall): the drive saw none of them, and no map made from its
+scans (whose features lie along the points they were fitted to) has a feature within the metric's 0.3 m
+of them. A city-wide footprints file scores as fast as the drive's own area."""
 
 
 def crop_walls(truth: GroundTruth, keep: np.ndarray) -> GroundTruth:
@@ -210,9 +204,22 @@ def crop_walls(truth: GroundTruth, keep: np.ndarray) -> GroundTruth:
                        poles=truth.poles)
 
 
-def observation_record(truth: GroundTruth) -> TruthWalls:
-    """The walls and observation record of ``truth`` as ``walls.csv`` holds them."""
-    return TruthWalls(truth.walls, truth.building, truth.labels, np.asarray(truth.n_returns, np.int64), truth.observed)
+def file_sha256(path: str | Path) -> str:
+    """The SHA-256 of a file's bytes (hex)."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def observation_record(truth: GroundTruth, footprints: str | Path | None = None) -> TruthWalls:
+    """The walls and observation record of ``truth`` as ``walls.csv`` holds them; with the SHA-256 of the
+    ``footprints`` file they were made from, when given (:func:`footprints_truth` checks it)."""
+    return TruthWalls(truth.walls, truth.building, truth.labels, np.asarray(truth.n_returns, np.int64), truth.observed,
+                      file_sha256(footprints) if footprints is not None else "")
 
 
 def observed_footprints(truth: GroundTruth, points: np.ndarray, scans: np.ndarray | None = None) -> GroundTruth:
@@ -240,6 +247,9 @@ def footprints_truth(path: str | Path, frame: GeoFrame, run_dir: str | Path | No
         return truth_from_footprints(path, frame)
     run_frame = run_frame or frame
     record = read_walls_csv(record_path)
+    if record.source_sha256 and record.source_sha256 != file_sha256(path):
+        raise InputFileError(record_path, f"was made from another version of {path} (changed since the run): "
+                                          "run again to score against it, or delete this file to count every wall")
     if len(record.walls):
         walls = truth_from_footprints(path, run_frame).walls
         distance, _ = cKDTree(walls).query(record.walls)

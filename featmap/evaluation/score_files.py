@@ -86,7 +86,7 @@ def evaluate_file(fused: str | Path, truth: str | Path, origin: str | None = Non
         segments, _ = read_fused_csv(fused)
         if frame is None and truth.is_file():
             raise FeatmapError(f"{fused}: a CSV is in a local frame; give --origin LAT,LON or keep it next to its "
-                               "metrics.json")
+                               "metrics.json (or merged.json)")
     _check_scored_length(fused, segments, "segments", "is it one drive's map?")
     own = run is not None and truth.resolve() in run.references.values()
     if truth.is_dir():              # a run of selected frames is scored on what those frames observed

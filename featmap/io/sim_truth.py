@@ -64,13 +64,16 @@ def observed_intervals(counts: np.ndarray, min_returns: int = MIN_BIN_RETURNS, b
 @dataclass(frozen=True)
 class TruthWalls:
     """``walls.csv``: walls (W, 4) local frame, building ids (W,), vertex labels (W, 2), returns (W,),
-    observed intervals per wall (list of (start, end) metres along the wall)."""
+    observed intervals per wall (list of (start, end) metres along the wall); for a run's record of
+    footprints (``footprint_walls.csv``), the SHA-256 of the footprints file it was made from (column
+    ``source_sha256``; "" in the simulator's walls.csv)."""
 
     walls: np.ndarray
     building: np.ndarray
     labels: np.ndarray
     n_returns: np.ndarray
     observed: list
+    source_sha256: str = ""
 
 
 def read_walls_csv(path: str | Path) -> TruthWalls:
@@ -86,7 +89,8 @@ def read_walls_csv(path: str | Path) -> TruthWalls:
     if missing:
         raise InputFileError(path, f"missing column(s) {', '.join(missing)}", line=1)
     walls, building, labels, n_returns, observed = [], [], [], [], []
-    for n, row in enumerate(reader, start=2):
+    rows = list(reader)
+    for n, row in enumerate(rows, start=2):
         try:
             coords = [float(row[c]) for c in ("x1", "y1", "x2", "y2")]
             returns = int(row["n_returns"])
@@ -105,19 +109,25 @@ def read_walls_csv(path: str | Path) -> TruthWalls:
         labels.append([row["label_1"], row["label_2"]])
         n_returns.append(returns)
         observed.append(intervals)
+    digests = {row.get("source_sha256") or "" for row in rows}
+    if len(digests) > 1:
+        raise InputFileError(path, "its rows name different source files (source_sha256)")
     return TruthWalls(np.asarray(walls, float).reshape(-1, 4), np.asarray(building, dtype=str),
-                      np.asarray(labels, dtype=str).reshape(-1, 2), np.asarray(n_returns, np.int64), observed)
+                      np.asarray(labels, dtype=str).reshape(-1, 2), np.asarray(n_returns, np.int64), observed,
+                      digests.pop() if digests else "")
 
 
 def write_walls_csv(path: str | Path, walls: TruthWalls) -> None:
-    """``walls.csv`` (the columns :func:`read_walls_csv` reads: ``WALL_COLUMNS``), written atomically."""
+    """``walls.csv`` (the columns :func:`read_walls_csv` reads: ``WALL_COLUMNS``, and ``source_sha256`` when
+    the walls name their source file), written atomically."""
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(WALL_COLUMNS)
+    source = [walls.source_sha256] if walls.source_sha256 else []
+    writer.writerow([*WALL_COLUMNS, *(["source_sha256"] if source else [])])
     for w in range(len(walls.walls)):
         x1, y1, x2, y2 = walls.walls[w]
         writer.writerow([walls.building[w], f"{x1:.6f}", f"{y1:.6f}", f"{x2:.6f}", f"{y2:.6f}", *walls.labels[w],
-                         int(walls.n_returns[w]), ";".join(f"{a:.6f}-{b:.6f}" for a, b in walls.observed[w])])
+                         int(walls.n_returns[w]), ";".join(f"{a:.6f}-{b:.6f}" for a, b in walls.observed[w]), *source])
     atomic_write_text(path, buf.getvalue())
 
 

@@ -16,8 +16,8 @@ from featmap.outputs.tables import (FootprintWallsCsv, FusedCsv, PoseCorrections
                                     TrajectoryCsv)
 
 OUTPUTS: tuple[Output, ...] = (SegmentsCsv(), FusedCsv(), TrajectoryCsv(), RefinedTrajectoryCsv(), PoseCorrectionsCsv(),
-                               FootprintWallsCsv(), FusedGeojson(), LayersGeojson(), RefinedTrajectoryGeojson(), Kml(), HtmlMap(),
-                               OverviewPng(), Comparison())
+                               FootprintWallsCsv(), FusedGeojson(), LayersGeojson(), RefinedTrajectoryGeojson(), Kml(),
+                               HtmlMap(), OverviewPng(), Comparison())
 
 
 def write_outputs(products: RunProducts, folder: str | Path, outputs: tuple[Output, ...] = OUTPUTS) -> list[str]:

@@ -14,6 +14,7 @@ from featmap.fusion import FusionResult
 from featmap.geo import GeoFrame
 from featmap.io.run_metrics import RunMetrics
 from featmap.io.segments_csv import SegmentTable
+from featmap.io.sim_truth import TruthWalls
 from featmap.plotting.basemap import tile_provider
 
 
@@ -70,7 +71,7 @@ class RunProducts:
     output: OutputConfig
     source_poses: np.ndarray | None = None
     corrections: np.ndarray | None = None
-    footprints: Any = None
+    footprints: TruthWalls | None = None
 
     @property
     def trajectory(self) -> np.ndarray:

@@ -166,7 +166,7 @@ class MappingPipeline:
                                    config_yaml=self.config.to_yaml(), metrics=metrics, output=self.config.output,
                                    source_poses=extraction.poses,
                                    corrections=None if refinement.method == "none" else refinement.result.corrections,
-                                   footprints=(observation_record(references["footprints"][1].data)
+                                   footprints=(observation_record(references["footprints"][1].data, references["footprints"][1].path)
                                                if "footprints" in references else None))
             t_write = time.perf_counter()
             files = write_outputs(products, folder.tmp, self.outputs)

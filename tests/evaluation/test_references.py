@@ -195,7 +195,7 @@ def test_a_runs_footprint_record_is_read_back_for_its_footprints_and_refused_for
     observed = observed_footprints(truth_from_footprints(path, FRAME), _wall_points(rng, 2.0, 7.0, 0.0, 400))
     assert observed.building.tolist() == ["A"] * 4                            # the far building is left out
     run = tmp_path / "run"
-    write_walls_csv(run / FOOTPRINT_WALLS_FILE, observation_record(observed))
+    write_walls_csv(run / FOOTPRINT_WALLS_FILE, observation_record(observed, path))
     back = footprints_truth(path, FRAME, run)
     assert back.observable().tolist() == observed.observable().tolist() and back.building.tolist() == ["A"] * 4
     assert np.allclose(back.walls, observed.walls, atol=1e-6)
@@ -205,6 +205,13 @@ def test_a_runs_footprint_record_is_read_back_for_its_footprints_and_refused_for
     moved_frame = footprints_truth(path, other, run, FRAME)
     assert np.allclose(moved_frame.walls, truth_from_footprints(path, other).walls[:4], atol=1e-3)
     assert footprints_truth(path, FRAME).observable().all() and len(footprints_truth(path, FRAME).walls) == 8
+    grown = json.loads(path.read_text())                      # a building added near the drive since the run
+    grown["features"].append({"type": "Feature", "properties": {"id": "B"},
+                              "geometry": {"type": "Polygon", "coordinates": [_square(FRAME, 0, -15)]}})
+    path.write_text(json.dumps(grown))
+    with pytest.raises(InputFileError, match=r"footprint_walls.csv: was made from another version of .*fp.geojson"):
+        footprints_truth(path, FRAME, run)
+    write_walls_csv(run / FOOTPRINT_WALLS_FILE, observation_record(observed))     # a record naming no file
     moved = _write(tmp_path, [{"type": "Feature", "properties": {"id": "A"},
                                "geometry": {"type": "Polygon", "coordinates": [_square(FRAME, 0.5)]}}])
     with pytest.raises(InputFileError, match=r"footprint_walls.csv: holds walls that .*fp.geojson does not have"):
