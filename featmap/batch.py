@@ -793,9 +793,9 @@ def merged_footprints(inputs: MergedInputs, footprints: Path, cache_dir: str | P
     truths, whole = [], None
     for k, d in enumerate(inputs.drives):
         run_dir = Path(d.run_dir)
-        own = read_run_metrics(run_dir / "metrics.json").reference_path("footprints", run_dir)
+        own = read_run_metrics(run_dir / "metrics.json").scored_against("footprints", footprints, run_dir)
         moved = inputs.alignment is not None and bool(inputs.alignment.corrections[k].any())
-        if own is not None and own.resolve() == footprints and (run_dir / FOOTPRINT_WALLS_FILE).is_file() and not moved:
+        if own and (run_dir / FOOTPRINT_WALLS_FILE).is_file() and not moved:
             truths.append(footprints_truth(footprints, inputs.frame, run_dir,
                                            d.geo_frame.frame() if d.geo_frame is not None else None))
             continue

@@ -388,8 +388,8 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
                 if frame is None:
                     raise FeatmapError(f"{spec_path}: truth {truth_path} is WGS84 but {spec.input} has no metrics.json "
                                        "with a geo origin beside it to place it in the local frame")
-                own = meta.reference_path("footprints", meta_path.parent) if meta is not None else None
-                run_dir = meta_path.parent if own is not None and own.resolve() == truth_path.resolve() else None
+                own = meta is not None and meta.scored_against("footprints", truth_path, meta_path.parent)
+                run_dir = meta_path.parent if own else None
                 record = None if run_dir is None else run_dir / FOOTPRINT_WALLS_FILE    # as the run observed them
                 ev = Footprints()
                 ref = Reference(footprints_truth(truth_path, frame, run_dir), str(truth_path.resolve()))

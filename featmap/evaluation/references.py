@@ -137,7 +137,7 @@ worlds (world 15: 0.052 below). ``benchmarks/bench_footprints.py`` reports the h
 
 def observe_walls(truth: GroundTruth, points: np.ndarray, scans: np.ndarray | None = None, tol_m: float = TOL_M,
                   bin_m: float = COVERAGE_BIN_M, min_points: int = VIEW_POINTS_PER_BIN,
-                  min_view_m: float = MIN_OBSERVED_M) -> GroundTruth:
+                  min_view_m: float = MIN_OBSERVED_M, keep_reach_m: float | None = None) -> GroundTruth:
     """``truth`` with its observation record taken from scan points: what a drive saw of footprint walls.
 
     The simulator's per-scan rule, with structure points for rays: a point observes a wall when it lies
@@ -152,6 +152,8 @@ def observe_walls(truth: GroundTruth, points: np.ndarray, scans: np.ndarray | No
         points: (P, 2) the scans' structure points in the same frame (every return of a 2D laser; the
             wall candidate cells of a 3D LiDAR).
         scans: (P,) the scan of each point; None: all from one scan.
+        keep_reach_m: leave out the walls that no point comes this close to (:func:`walls_near`); None:
+            keep every wall.
     """
     from scipy.spatial import cKDTree
 
@@ -161,8 +163,10 @@ def observe_walls(truth: GroundTruth, points: np.ndarray, scans: np.ndarray | No
         raise ValueError(f"{len(points)} points but {len(scans)} scan ids")
     finite = np.isfinite(points).all(axis=1)
     points, scans = points[finite], scans[finite]
-    tree = cKDTree(points) if len(points) else None
-    near_any = walls_near(truth.walls, points, tol_m)
+    tree = cKDTree(points)
+    if keep_reach_m is not None:
+        truth = crop_walls(truth, walls_near(truth.walls, tree, keep_reach_m))
+    near_any = walls_near(truth.walls, tree, tol_m)
     observed = []
     for wall, reached in zip(np.asarray(truth.walls, float), near_any):
         p, q = wall[:2], wall[2:]
@@ -225,8 +229,7 @@ def observation_record(truth: GroundTruth, footprints: str | Path | None = None)
 def observed_footprints(truth: GroundTruth, points: np.ndarray, scans: np.ndarray | None = None) -> GroundTruth:
     """Footprint walls as a run scores them: those within ``FOOTPRINT_REACH_M`` of its scan points, with
     what the scans observed of them (:func:`observe_walls`; ``points`` (P, 2), ``scans`` (P,) as there)."""
-    cropped = crop_walls(truth, walls_near(truth.walls, points, FOOTPRINT_REACH_M))
-    return observe_walls(cropped, points, scans)
+    return observe_walls(truth, points, scans, keep_reach_m=FOOTPRINT_REACH_M)
 
 
 def footprints_truth(path: str | Path, frame: GeoFrame, run_dir: str | Path | None = None,

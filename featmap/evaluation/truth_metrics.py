@@ -87,19 +87,22 @@ def lies_on(points: np.ndarray, directions: np.ndarray, segment: np.ndarray,
     return ok, perp
 
 
-def walls_near(walls: np.ndarray, points: np.ndarray, reach_m: float) -> np.ndarray:
-    """(W,) which of the walls (W, 4) have one of the (P, 2) points within about ``reach_m`` of them: at least
-    every wall with a point closer than ``reach_m`` (a KD-tree query around each wall's centre)."""
+def walls_near(walls: np.ndarray, points, reach_m: float) -> np.ndarray:
+    """(W,) which of the walls (W, 4) have one of the points within about ``reach_m`` of them: at least
+    every wall with a point closer than ``reach_m`` (a KD-tree query around each wall's centre).
+
+    ``points``: (P, 2) finite points, or a ``scipy.spatial.cKDTree`` of them."""
     from scipy.spatial import cKDTree
 
     walls = np.asarray(walls, float).reshape(-1, 4)
-    points = np.asarray(points, float).reshape(-1, 2)
-    points = points[np.isfinite(points).all(axis=1)]
-    if not len(walls) or not len(points):
+    if not isinstance(points, cKDTree):
+        points = np.asarray(points, float).reshape(-1, 2)
+    tree = points if isinstance(points, cKDTree) else cKDTree(points[np.isfinite(points).all(axis=1)])
+    if not len(walls) or not tree.n:
         return np.zeros(len(walls), bool)
     centres = (walls[:, :2] + walls[:, 2:]) / 2
     half = np.hypot(walls[:, 2] - walls[:, 0], walls[:, 3] - walls[:, 1]) / 2
-    return cKDTree(points).query_ball_point(centres, half + reach_m, return_length=True) > 0
+    return tree.query_ball_point(centres, half + reach_m, return_length=True) > 0
 
 
 def observed_samples(truth: GroundTruth, walls_mask: np.ndarray, step: float = STEP_M):

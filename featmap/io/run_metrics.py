@@ -121,6 +121,11 @@ class RunMetrics(_Model):
         path = Path(value)
         return path if path.is_absolute() else Path(run_dir) / path
 
+    def scored_against(self, name: str, path: str | Path, run_dir: str | Path) -> bool:
+        """Whether the run in ``run_dir`` used the file or folder at ``path`` as its ``name`` reference."""
+        own = self.reference_path(name, run_dir)
+        return own is not None and own.resolve() == Path(path).resolve()
+
 
 def write_run_metrics(path: str | Path, metrics: RunMetrics) -> Path:
     return atomic_write_text(path, json.dumps(metrics.model_dump(mode="json"), indent=1, allow_nan=False))
