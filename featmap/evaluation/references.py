@@ -118,8 +118,9 @@ def truth_from_footprints(path: str | Path, frame: GeoFrame) -> GroundTruth:
     walls = np.column_stack([points, points[following]])
     labels = np.full((len(walls), 2), "", dtype=object)
     for ring, start, count in zip(ring_labels, np.cumsum(counts) - counts, counts):
-        if ring is not None:
-            labels[start:start + count] = [[ring[k], ring[(k + 1) % count]] for k in range(count)]
+        if ring is not None:            # (a label is text: a number or a list in the file is written out)
+            names = [str(label) for label in ring]
+            labels[start:start + count] = [[names[k], names[(k + 1) % count]] for k in range(count)]
     lengths = np.hypot(walls[:, 2] - walls[:, 0], walls[:, 3] - walls[:, 1])
     return GroundTruth(walls=walls, building=np.repeat(np.asarray(ring_building), counts),
                        labels=labels.astype(str), observed=[[(0.0, float(L))] for L in lengths],

@@ -77,6 +77,13 @@ def test_malformed_features_fail_in_one_line(tmp_path, features, match):
         truth_from_footprints(_write(tmp_path, features), FRAME)
 
 
+def test_vertex_labels_that_are_not_text_are_written_out(tmp_path):
+    path = _write(tmp_path, [{"type": "Feature", "properties": {"vertex_labels": [[1, 2], "b", None, 4]},
+                              "geometry": {"type": "Polygon", "coordinates": [_square(FRAME)]}}])
+    assert truth_from_footprints(path, FRAME).labels.tolist() == [["[1, 2]", "b"], ["b", "None"], ["None", "4"],
+                                                                  ["4", "[1, 2]"]]
+
+
 def test_null_properties_and_odd_vertex_labels_are_read_as_empty(tmp_path):
     ring = _square(FRAME)
     path = _write(tmp_path, [{"type": "Feature", "properties": None, "geometry": {"type": "Polygon", "coordinates": [ring]}},
