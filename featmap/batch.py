@@ -790,19 +790,18 @@ def merged_footprints(inputs: MergedInputs, footprints: Path, cache_dir: str | P
     from featmap.io.run_metrics import read_run_metrics
     from featmap.io.sim_truth import FOOTPRINT_WALLS_FILE
 
-    truths, whole = [], None
+    truths, whole = [], truth_from_footprints(footprints, inputs.frame)      # (read once for every drive)
     for k, d in enumerate(inputs.drives):
         run_dir = Path(d.run_dir)
         own = read_run_metrics(run_dir / "metrics.json").scored_against("footprints", footprints, run_dir)
         moved = inputs.alignment is not None and bool(inputs.alignment.corrections[k].any())
         if own and (run_dir / FOOTPRINT_WALLS_FILE).is_file() and not moved:
             truths.append(footprints_truth(footprints, inputs.frame, run_dir,
-                                           d.geo_frame.frame() if d.geo_frame is not None else None))
+                                           d.geo_frame.frame() if d.geo_frame is not None else None, whole))
             continue
         found = None if cache_dir is None else merged_drive_points(inputs, k, cache_dir)
         if found is None:
             return None
-        whole = whole if whole is not None else truth_from_footprints(footprints, inputs.frame)
         truths.append(observed_footprints(whole, *found))
     return merge_truths(truths)
 

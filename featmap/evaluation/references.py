@@ -234,11 +234,12 @@ def observed_footprints(truth: GroundTruth, points: np.ndarray, scans: np.ndarra
 
 
 def footprints_truth(path: str | Path, frame: GeoFrame, run_dir: str | Path | None = None,
-                     run_frame: GeoFrame | None = None) -> GroundTruth:
+                     run_frame: GeoFrame | None = None, whole: GroundTruth | None = None) -> GroundTruth:
     """Building footprints as a run scored them, in ``frame``: the walls and observation record that the run
     (or batch merge) in ``run_dir`` wrote (``footprint_walls.csv``, :func:`observed_footprints`; in its
     local frame ``run_frame``, default ``frame``), else every wall of the footprints, observable whole (a
-    run made before runs kept a record, or none given).
+    run made before runs kept a record, or none given). ``whole``: the footprints already read in ``frame``
+    (:func:`truth_from_footprints`), so that several runs' records are checked against one reading.
 
     Raises:
         InputFileError: the footprints or the record are unreadable, or the record holds walls that are not
@@ -248,19 +249,19 @@ def footprints_truth(path: str | Path, frame: GeoFrame, run_dir: str | Path | No
 
     record_path = None if run_dir is None else Path(run_dir) / FOOTPRINT_WALLS_FILE
     if record_path is None or not record_path.is_file():
-        return truth_from_footprints(path, frame)
+        return whole if whole is not None else truth_from_footprints(path, frame)
     run_frame = run_frame or frame
     record = read_walls_csv(record_path)
     if record.source_sha256 and record.source_sha256 != file_sha256(path):
         raise InputFileError(record_path, f"was made from another version of {path} (changed since the run): "
                                           "run again to score against it, or delete this file to count every wall")
-    if len(record.walls):
-        walls = truth_from_footprints(path, run_frame).walls
-        distance, _ = cKDTree(walls).query(record.walls)
+    walls = record.walls if run_frame == frame else reproject_segments(record.walls, run_frame, frame)
+    if len(walls):
+        whole = whole if whole is not None else truth_from_footprints(path, frame)
+        distance, _ = cKDTree(whole.walls).query(walls)
         if not (distance <= 1e-3).all():
             raise InputFileError(record_path, f"holds walls that {path} does not have (changed since the run?): "
                                               "run again to score against it, or delete this file to count every wall")
-    walls = record.walls if run_frame == frame else reproject_segments(record.walls, run_frame, frame)
     return GroundTruth(walls=walls, building=record.building, labels=record.labels, observed=record.observed,
                        n_returns=record.n_returns)
 
