@@ -65,10 +65,13 @@ def read_velo_bin(path: str | Path, allow_empty: bool = False) -> np.ndarray:
     if not np.isfinite(points).all():
         bad = int((~np.isfinite(points).all(axis=1)).sum())
         raise DatasetError(f"{path}: {bad} point(s) with NaN or inf coordinates")
-    far = np.abs(points[:, :3]).max(axis=1) > MAX_RETURN_M if len(points) else np.zeros(0, bool)
-    if far.any():
-        raise DatasetError(f"{path}: {int(far.sum())} point(s) farther than {MAX_RETURN_M:.0f} m from the sensor: "
-                           "not a velodyne scan (x, y, z, reflectance as float32)?")
+    # (Bounds of the whole contiguous array first, reflectance included: 0.06 ms instead of 5 ms a scan
+    # for the per-row test, which runs only when some value is that large.)
+    if len(points) and max(float(points.max()), -float(points.min())) > MAX_RETURN_M:
+        far = np.abs(points[:, :3]).max(axis=1) > MAX_RETURN_M
+        if far.any():
+            raise DatasetError(f"{path}: {int(far.sum())} point(s) farther than {MAX_RETURN_M:.0f} m from the sensor: "
+                               "not a velodyne scan (x, y, z, reflectance as float32)?")
     return points
 
 

@@ -99,6 +99,21 @@ def test_nan_points_are_caught_when_the_scan_is_read(drive_copy):
         ds[1]
 
 
+
+def test_far_points_are_caught_but_a_large_reflectance_is_not(tmp_path):
+    pts = np.zeros((6, 4), np.float32)
+    pts[:, 0] = np.arange(6) + 5.0
+    pts[2, 3] = 65535.0                          # reflectance as a 16-bit intensity: a value, not a distance
+    path = tmp_path / "0000000000.bin"
+    write_velo_bin(path, pts)
+    np.testing.assert_array_equal(read_velo_bin(path), pts)
+    for column, value in ((0, 2e4), (2, -3e4)):
+        far = pts.copy()
+        far[[1, 4], column] = value
+        write_velo_bin(path, far)
+        with pytest.raises(DatasetError, match=r"0000000000.bin: 2 point\(s\) farther than 10000 m"):
+            read_velo_bin(path)
+
 def test_skip_bad_scans_leaves_them_out(drive_copy):
     root, drive = drive_copy
     d = _drive_dir(root, drive)
