@@ -57,7 +57,7 @@ def extractor_source(extractor: Extractor) -> str:
 def scan_key(points: np.ndarray, extractor: Extractor, section) -> str:
     """The content key of one scan's extraction: points x extractor (name, version, source) x config (hex,
     40 chars)."""
-    h = hashlib.blake2b(digest_size=20)
+    h = hashlib.sha256()           # (SHA-256 has CPU instructions: a scan's 2 MB hash in a third of BLAKE2b's time)
     pts = np.ascontiguousarray(points)
     h.update(f"{pts.dtype.str}{pts.shape}".encode())
     if pts.size:                                  # (a scan with no return hashes its dtype and shape alone)
@@ -65,7 +65,7 @@ def scan_key(points: np.ndarray, extractor: Extractor, section) -> str:
     h.update(json.dumps({"extractor": extractor.name, "version": extractor.version,
                          "source": extractor_source(extractor), "config": section.model_dump(mode="json")},
                         sort_keys=True).encode())
-    return h.hexdigest()
+    return h.hexdigest()[:40]
 
 
 class SegmentStore:
