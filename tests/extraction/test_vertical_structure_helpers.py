@@ -29,8 +29,12 @@ def test_connected_labels_without_nodes_or_edges():
 
 
 @settings(max_examples=80, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), k=st.integers(1, 500), span=st.sampled_from([1, 5, 1000, 10**7]))
-def test_labels_are_numpys_unique_inverse(seed, k, span):
+@given(seed=st.integers(0, 2**32 - 1), k=st.integers(0, 500), span=st.sampled_from([1, 5, 1000, 10**7]),
+       per_value=st.sampled_from([None, 20, 40]))
+def test_labels_are_numpys_unique_inverse(seed, k, span, per_value):
+    # (per_value: a span of that many labels per value plus the table's margin, either side of the
+    # ratio at which the table gives way to sorting)
+    span = span if per_value is None else per_value * k + 65536
     values = np.random.default_rng(seed).integers(0, span, k)
     distinct, inverse = _labels(values)
     expected_distinct, expected_inverse = np.unique(values, return_inverse=True)
@@ -39,10 +43,11 @@ def test_labels_are_numpys_unique_inverse(seed, k, span):
 
 
 @settings(max_examples=80, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), k=st.integers(0, 400), groups=st.integers(1, 20), ties=st.booleans())
-def test_group_order_sorts_by_group_then_value(seed, k, groups, ties):
+@given(seed=st.integers(0, 2**32 - 1), k=st.integers(0, 400), groups=st.integers(1, 20), ties=st.booleans(),
+       offset=st.sampled_from([0, 2**16 - 21, 2**16]))
+def test_group_order_sorts_by_group_then_value(seed, k, groups, ties, offset):
     rng = np.random.default_rng(seed)
-    group = rng.integers(0, groups, k)
+    group = rng.integers(0, groups, k) + offset          # (labels from 2**16 up are ordered by another path)
     value = rng.integers(0, 5, k).astype(float) if ties else rng.normal(size=k)
     order = _group_order(group, value)
     assert np.array_equal(np.sort(order), np.arange(k))
