@@ -29,7 +29,8 @@ def ensure_simulated_drive(world_name: str = DEFAULT_WORLD, sim_root: str | Path
     ``world_name`` is a built-in world or a world file; its drive lives in ``sim_root/<world stem>``
     with a stamp (``world.json``) of what it was simulated from: the world's content, the sensor and
     the simulator's source. A drive whose stamp differs (the world file was edited, another file of
-    the same name was simulated there, or the simulator changed) is simulated again.
+    the same name was simulated there, or the simulator changed) is simulated again; the same world
+    read from another path (a moved checkout) is not.
     """
     from featmap.simulation.sensors import SENSORS
     from featmap.simulation.simulate import SIM_DATE, simulate_drive, simulation_fingerprint
@@ -40,7 +41,9 @@ def ensure_simulated_drive(world_name: str = DEFAULT_WORLD, sim_root: str | Path
     drive = f"{SIM_DATE}_drive_{SIM_DRIVE_ID}"
     world = load_world(world_name)
     sensor = SENSORS["hdl64"]
-    fingerprint = simulation_fingerprint({"world": world.model_dump(mode="json"), "sensor": sensor.__dict__,
+    # (What the world is, not where its file lies: a moved checkout or a second copy of the same world
+    # reuses the drive.)
+    fingerprint = simulation_fingerprint({"world": world.model_dump(mode="json", exclude={"source"}), "sensor": sensor.__dict__,
                                           "drive_id": SIM_DRIVE_ID})
     stamp = data_dir / STAMP_FILE
     done = (data_dir / SIM_DATE / f"{drive}_sync" / "truth" / "simulation.json").exists()

@@ -39,3 +39,15 @@ def test_another_world_file_of_the_same_name_does_not_get_the_first_ones_drive(t
     for folder, y in (("a", 6), ("b", 22), ("a", 6)):
         data_dir, _ = ensure_simulated_drive(str(tmp_path / folder / "street.yaml"), tmp_path / "sim")
         assert _walls(data_dir).query("building == 'A'")[["y1", "y2"]].min().min() == y
+
+
+def test_the_same_world_read_from_another_path_reuses_the_drive(tmp_path):
+    for folder in ("before", "moved"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "street.yaml").write_text(TINY_WORLD)
+    data_dir, _ = ensure_simulated_drive(str(tmp_path / "before" / "street.yaml"), tmp_path / "sim")
+    stamp = (data_dir / "world.json").stat().st_mtime_ns
+    reporter = RecordingReporter()
+    assert ensure_simulated_drive(str(tmp_path / "moved" / "street.yaml"), tmp_path / "sim", reporter)[0] == data_dir
+    assert (data_dir / "world.json").stat().st_mtime_ns == stamp
+    assert not any("again" in text for text in reporter.infos)
