@@ -173,7 +173,7 @@ def validated_xyz(points) -> np.ndarray:
         raise FeatmapError(f"scan points: expected an (N, 3) or (N, 4) array, got shape {arr.shape}")
     if not np.issubdtype(arr.dtype, np.number):
         raise FeatmapError(f"scan points: expected numbers, got {arr.dtype}")
-    xyz = np.asfortranarray(arr[:, :3], dtype=np.float64)
+    xyz = np.array(arr[:, :3], dtype=np.float64, order="F")     # (a copy, column-major: see _rows)
     if not np.isfinite(xyz).all():
         finite = np.isfinite(xyz).all(axis=1)
         raise FeatmapError(f"scan points: {int((~finite).sum())} point(s) with NaN or inf coordinates")
@@ -853,15 +853,18 @@ def _group_order(group: np.ndarray, value: np.ndarray) -> np.ndarray:
 
 
 LABEL_TABLE_RATIO = 32
+LABEL_TABLE_MAX = 1 << 23
+"""... and never more than this many entries (9 bytes each: 75 MB), whatever the number of labels."""
 
 
 def _labels(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``np.unique(values, return_inverse=True)`` of (K,) integer labels (>= 0): the sorted distinct
     labels and the (K,) index of each value among them (by a table when the labels' range is small
-    enough: up to ``LABEL_TABLE_RATIO`` times their number; a scan's cell keys span about 20 times as
-    many cells as it has returns, and the table takes a third of the time of sorting them)."""
+    enough: up to ``LABEL_TABLE_RATIO`` times their number, at most ``LABEL_TABLE_MAX``; a scan's cell
+    keys span about 20 times as many cells as it has returns, and the table takes a third of the time
+    of sorting them)."""
     top = int(values.max()) + 1 if len(values) else 0
-    if top == 0 or top > LABEL_TABLE_RATIO * len(values) + 65536:
+    if top == 0 or top > min(LABEL_TABLE_RATIO * len(values) + 65536, LABEL_TABLE_MAX):
         return np.unique(values, return_inverse=True)
     present = np.zeros(top, bool)
     present[values] = True

@@ -1,12 +1,14 @@
 """The vertical-structure extractor's array helpers give exactly what the numpy/scipy calls they stand for give."""
 
+import tracemalloc
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from featmap.extraction.vertical_structure import _group_order, _labels, connected_labels
+from featmap.extraction.vertical_structure import _group_order, _labels, connected_labels, validated_xyz
 
 
 @settings(max_examples=80, deadline=None)
@@ -54,3 +56,26 @@ def test_group_order_sorts_by_group_then_value(seed, k, groups, ties, offset):
     expected = np.lexsort((value, group))
     assert np.array_equal(group[order], group[expected])
     assert np.array_equal(value[order], value[expected])
+
+
+def test_labels_of_a_wide_range_do_not_take_a_table_of_that_range():
+    # 2**20 labels spread over 2**25 values: within 32 times their number, but a table of 2**25 entries
+    # would take 300 MB; past LABEL_TABLE_MAX they are sorted instead.
+    values = np.random.default_rng(0).integers(0, 2**25, 2**20)
+    tracemalloc.start()
+    try:
+        distinct, inverse = _labels(values)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    expected_distinct, expected_inverse = np.unique(values, return_inverse=True)
+    assert np.array_equal(distinct, expected_distinct) and np.array_equal(inverse, expected_inverse)
+    assert peak < 120e6
+
+
+def test_validated_points_are_a_column_major_copy_whatever_the_input_layout():
+    points = np.random.default_rng(1).normal(size=(50, 4))
+    for given_points in (points, np.asfortranarray(points[:, :3]), points.astype(np.float32), points[::-1]):
+        xyz = validated_xyz(given_points)
+        assert xyz.flags.f_contiguous and xyz.dtype == np.float64 and not np.shares_memory(xyz, given_points)
+        assert np.array_equal(xyz, np.asarray(given_points[:, :3], dtype=np.float64))
