@@ -853,8 +853,9 @@ def _group_order(group: np.ndarray, value: np.ndarray) -> np.ndarray:
 
 
 LABEL_TABLE_RATIO = 32
+"""``_labels`` numbers labels by a table when their range is at most this many times their number (+ 65536) ..."""
 LABEL_TABLE_MAX = 1 << 23
-"""... and never more than this many entries (9 bytes each: 75 MB), whatever the number of labels."""
+"""... and at most this many entries (9 bytes each: 75 MB), whatever the number of labels."""
 
 
 def _labels(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
