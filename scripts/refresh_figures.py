@@ -12,7 +12,7 @@ with a warning) and, when ``../shared`` (or ``$FEATMAP_SHARED``) holds the share
 set. Its output goes to ``data/refresh_figures/<step>.log``.
 
 A step that finished is recorded in ``data/refresh_figures/state.json`` with a digest of the code the
-figures come from (every file under featmap/ and configs/): run again after an interruption, the script
+figures come from (every file under featmap/, configs/, benchmarks/ and scripts/): run again after an interruption, the script
 skips the steps already done for that code and starts the others; any edit there starts them all again.
 A step whose data is missing (the shared real scans and logs) is reported as not run, never counted as
 done. A failing step stops the script (exit 1) with the name of its log. At the end,
@@ -127,9 +127,9 @@ def select(steps, changed: set[str], only: list[str] | None, skip: list[str]) ->
 
 
 def code_digest(root: Path = ROOT) -> str:
-    """16 hex digits over every file under featmap/ and configs/ (their paths and bytes)."""
+    """16 hex digits over every file under featmap/, configs/, benchmarks/ and scripts/ (paths and bytes)."""
     h = hashlib.sha256()
-    for folder in ("featmap", "configs"):
+    for folder in ("featmap", "configs", "benchmarks", "scripts"):
         for path in sorted((root / folder).rglob("*")):
             if path.is_file() and "__pycache__" not in path.parts:
                 h.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")

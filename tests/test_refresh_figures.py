@@ -76,7 +76,7 @@ def test_a_step_without_its_data_is_not_run_and_not_counted_done(rf, tmp_path):
 
 
 def test_the_code_digest_follows_the_code(rf, tmp_path):
-    for folder in ("featmap", "configs"):
+    for folder in ("featmap", "configs", "benchmarks", "scripts"):
         (tmp_path / folder).mkdir()
     (tmp_path / "featmap" / "x.py").write_text("a = 1\n")
     first = rf.code_digest(tmp_path)
