@@ -126,6 +126,13 @@ def select(steps, changed: set[str], only: list[str] | None, skip: list[str]) ->
     return [s for s in chosen if s.name not in skip]
 
 
+def hand_written(changed: set[str]) -> list[str]:
+    """The benchmarks of the README's speed table that ``changed`` areas call for (every one of them for a
+    change to speed: that table is all speed)."""
+    areas = AREAS if changed & {"all", "speed"} else changed
+    return sorted({bench for area in areas for bench in BY_HAND.get(area, [])})
+
+
 def code_digest(root: Path = ROOT) -> str:
     """16 hex digits over every file under featmap/, configs/, benchmarks/ and scripts/ (paths and bytes)."""
     h = hashlib.sha256()
@@ -227,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\nstep                     outcome                         minutes")
     for name, outcome, seconds in outcomes:
         print(f"{name:24s} {outcome:31s} {seconds / 60:7.1f}")
-    by_hand = sorted({b for area in (AREAS if "all" in args.changed else args.changed) for b in BY_HAND.get(area, [])})
+    by_hand = hand_written(set(args.changed))
     if by_hand and not failed:
         print("\nthe README's speed table is written by hand: re-run and copy (with the date) " + "; ".join(by_hand))
     return 1 if failed else 0

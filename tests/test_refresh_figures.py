@@ -39,6 +39,8 @@ def test_a_change_selects_the_steps_that_measure_it(rf):
     assert "real_2d" not in three_d
     assert names(rf.select(rf.STEPS, {"all"}, None, [])) == names(rf.STEPS)
     assert names(rf.select(rf.STEPS, set(), ["footprints", "real_scans"], [])) == ["real_scans", "footprints"]
+    assert rf.hand_written({"speed"}) == rf.hand_written({"all"}) and "benchmarks/bench_sweep.py" in rf.hand_written({"speed"})
+    assert rf.hand_written({"extraction_2d"}) == ["benchmarks/bench_carmen.py"]
     with pytest.raises(ValueError, match="unknown step.*nonsense"):
         rf.select(rf.STEPS, set(), ["nonsense"], [])
 
