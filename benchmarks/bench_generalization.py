@@ -8,7 +8,8 @@ side streets, far walls 50-100 m away, cars, fences, hedges, poles, trees, slope
 curbs; hdl64, vlp32, vls128 or vlp16 with 0.1-0.4 deg azimuth steps, 1-3 cm range noise and
 dropout). ``--split tuning`` (default) uses ``TUNING_SEEDS``, the worlds to develop and tune on;
 ``--split heldout`` uses ``HELDOUT_SEEDS``, which must never be used while tuning: run it only to
-report how final defaults generalise. Each drive is simulated on first use into
+report how final defaults generalise. ``--split tuning --seeds`` also takes any other seed that is not
+held out (a probe world, e.g. one chosen by the settings of a held-out world that misses). Each drive is simulated on first use into
 ``data/sim/<split>/procedural_<seed>`` with per-scan ground truth (``truth/observations.npz``).
 
 The default covers every frame of every world of the split (11 tuning or 10 held-out worlds of
@@ -275,7 +276,9 @@ def markdown_summary(results: list[WorldResult], methods: list[str], split: str,
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--split", choices=("tuning", "heldout"), default="tuning")
-    parser.add_argument("--seeds", type=int, nargs="+", help="a subset of the split's seeds")
+    parser.add_argument("--seeds", type=int, nargs="+",
+                        help="a subset of the split's seeds; with --split tuning also any seed that is not held out "
+                             "(a probe world to develop on)")
     parser.add_argument("--frames", default=None, help="start:stop:step selection of every world's frames (default: all)")
     parser.add_argument("--cache-dir", type=Path, default=Path("data/cache"), help="content-keyed extraction cache")
     parser.add_argument("--no-cache", action="store_true", help="extract every scan (for timing)")
@@ -303,9 +306,14 @@ def _run(args, console: Console) -> int:
 
     allowed = split_seeds(args.split)
     seeds = list(args.seeds or allowed)
-    stray = [s for s in seeds if s not in allowed]
-    if stray:
-        raise FeatmapError(f"--seeds {stray}: not in the {args.split} split ({', '.join(map(str, allowed))})")
+    if args.split == "tuning":               # any world that is not held out may be developed on
+        stray = [s for s in seeds if s in split_seeds("heldout")]
+        if stray:
+            raise FeatmapError(f"--seeds {stray}: held-out worlds; run them with --split heldout, only to report")
+    else:
+        stray = [s for s in seeds if s not in allowed]
+        if stray:
+            raise FeatmapError(f"--seeds {stray}: not in the {args.split} split ({', '.join(map(str, allowed))})")
     workers = max(1, min(MAX_WORKERS, args.workers))
     config = load_config(None, args.overrides)
     methods = resolve_methods(args.methods)
