@@ -60,6 +60,11 @@ wall's points away. One pass, no randomness:
    a tree crown over a fence does not lift it, nor when street trees hide the top of the rest of the
    fence. A facade at 20 m is seen only up to ~2.5 m by an HDL-64 (upper beam +2 deg),
    but it stops the top beam; a 1.5 m car never does, nor does a 2 m van at 11 m.
+   Off by default (not adopted, ``docs/results.md``): a piece whose returns leave gaps (columns of a
+   far wall seen at grazing incidence, metres apart) must be straight in each column
+   (``sparse_curve_factor``) and its columns must lie on one line (``sparse_offset_factor``), which
+   lets ``link_grazing_deg`` reach 87 deg (with ``link_grazing_max_m``) without rows of trees or
+   parked cars seen that obliquely.
    *Long pieces* (``solid_length_m``) are no tree crown: they may float (a wall seen over the house
    in front of it), may be seen over a narrow band when they stop the top beam (``solid_min_span_m``:
    a facade behind a hedge, or up a slope under the beam), and may have few returns
@@ -108,6 +113,7 @@ class VerticalStructureConfig(Section):
     link_azimuth_deg: float = Field(0.6, gt=0, description="... (or within this azimuth when the step cannot be measured; 0 steps = always) ...")
     link_radial_m: float = Field(2.0, gt=0, description="... that are this close in range (far walls, walls seen at grazing incidence) ...")
     link_grazing_deg: float = Field(85.0, ge=0, lt=90, description="... and so are two columns one azimuth step apart whose ranges differ as on a wall seen up to this far from head-on (far walls along the street; 0 = off) ...")
+    link_grazing_max_m: float = Field(0.0, ge=0, description="... when their ranges differ by at most this (two buildings in line far away, seen one azimuth step apart, are not one wall; 0 = any, the default) ...")
     link_column_m: float = Field(1.0, ge=0, description="... a column being a cell whose returns stand this high (a wall's; a tree crown's returns at several depths do not)")
     link_angle_deg: float = Field(10.0, gt=0, le=90, description="linked cells' line directions differ by at most this")
     line_tolerance_m: float = Field(0.08, gt=0, description="a linked cell lies this close to its neighbour's line")
@@ -127,6 +133,9 @@ class VerticalStructureConfig(Section):
     max_behind: float = Field(1.0, ge=0, description="... and at most this many returns per wall return lie up to 1 m behind it (a wall hides what is behind it; foliage does not)")
     max_incidence_deg: float = Field(88.0, ge=0, le=90, description="a wall is seen at most this far from head-on (returns along a ray are a round thing seen at several depths, not a surface seen edge-on)")
     min_azimuth_steps: float = Field(1.5, ge=0, description="a wall whose returns leave a gap longer than max_gap_m spans at least this many of the scan's azimuth steps as seen from the sensor (two columns of returns with nothing between, e.g. a far corner and a pole one step apart, fit any line)")
+    sparse_curve_factor: float = Field(0.0, ge=0, description="a wall whose returns leave gaps longer than max_gap_m (a far wall seen at grazing incidence: columns of returns metres apart) is straight in each column: its returns' positions along it within max_column_curve_m and within this many times the scan's typical wall spread (median) of a fit on height and lateral position per column (a tree crown's depth follows its round; 0 = off, the default: not adopted, see docs/results.md) ...")
+    sparse_offset_factor: float = Field(0.0, ge=0, description="... and its columns lie on one line: their mean offsets from it spread (rms) at most this many times the spread within the columns plus sparse_offset_floor_m (parked cars in a row are not coplanar; 0 = off, the default)")
+    sparse_offset_floor_m: float = Field(0.01, ge=0, description="... (see sparse_offset_factor)")
     max_column_curve_m: float = Field(0.07, gt=0, description="a wall spanning fewer than min_azimuth_steps has its returns' positions along it within this (median) of a fit on their height, azimuth and product (one or two columns of returns cut a wall in straight lines; a tree crown seen from afar curves)")
     min_span_m: float = Field(0.8, ge=0, description="a wall's returns span at least this much in height ...")
     min_top_m: float = Field(1.5, ge=0, description="... and reach at least this high above the local ground, and it ...")
@@ -432,6 +441,8 @@ def _grazing_pairs(points: np.ndarray, columns: np.ndarray, config: VerticalStru
     dphi = _azimuth_gap(points[i], points[j])
     dr = np.abs(rng[i] - rng[j])
     keep = (dphi <= 1.5 * step) & (dr > config.link_radial_m) & (dr <= np.minimum(rng[i], rng[j]) * dphi * tan)
+    if config.link_grazing_max_m > 0:
+        keep &= dr <= config.link_grazing_max_m
     return graze[keep]
 
 
@@ -970,6 +981,8 @@ class PieceMeasures:
             for pieces spanning fewer than ``min_azimuth_steps`` (0 for the others).
         column_chain: (n,) the piece was joined from single columns of returns one azimuth step apart (a far
             wall seen at grazing incidence, see ``merge_collinear``); None = none was.
+        sparse_curve, sparse_offset, sparse_within: (n,) see :func:`sparse_columns`; None when neither
+            ``sparse_curve_factor`` nor ``sparse_offset_factor`` is set.
     """
 
     a: np.ndarray
@@ -985,6 +998,9 @@ class PieceMeasures:
     max_gap: np.ndarray
     column_curve: np.ndarray
     column_chain: np.ndarray | None = None
+    sparse_curve: np.ndarray | None = None
+    sparse_offset: np.ndarray | None = None
+    sparse_within: np.ndarray | None = None
 
     @property
     def length(self) -> np.ndarray:
@@ -1058,7 +1074,76 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
                          behind=_points_behind(cells, a, b, config) / safe,
                          max_gap=_max_gap(piece, along, n),
                          column_curve=_narrow_column_curve(_rows(xyz, member), along, piece, mean, a, b, config),
-                         column_chain=None if chain is None else np.isin(labels, label[chain]))
+                         column_chain=None if chain is None else np.isin(labels, label[chain]),
+                         **_sparse_measures(_rows(xyz, member), along, offset, piece, mean, n, config))
+
+
+def _sparse_measures(pts: np.ndarray, along: np.ndarray, offset: np.ndarray, piece: np.ndarray, mean: np.ndarray,
+                     n: int, config: VerticalStructureConfig) -> dict:
+    """The ``sparse_*`` fields of :class:`PieceMeasures` (all None when their tests are off)."""
+    step = _configured_step_deg(config)
+    if step is None or (config.sparse_curve_factor <= 0 and config.sparse_offset_factor <= 0):
+        return {}
+    curve, spread, within = sparse_columns(pts, along, offset, piece, mean, n, config.max_gap_m,
+                                           np.deg2rad(config.min_azimuth_steps * step))
+    return {"sparse_curve": curve, "sparse_offset": spread, "sparse_within": within}
+
+
+def sparse_columns(pts: np.ndarray, along: np.ndarray, offset: np.ndarray, piece: np.ndarray, mean: np.ndarray,
+                   n: int, gap_m: float, column_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How straight and how coplanar the columns of returns of each piece are.
+
+    A piece's returns are cut into stretches where they leave a gap along it longer than ``gap_m``; a
+    stretch spanning less than ``column_rad`` in azimuth (as seen from the sensor) with >= 4 returns is
+    a *column* (one azimuth of a far wall seen at grazing incidence: the columns lie metres apart).
+
+    Args:
+        pts: (K, 3) the pieces' returns (levelled frame, metres); ``along``, ``offset``: (K,) their
+            positions along and across their piece's line; ``piece``: (K,) labels 0..n-1.
+        mean: (n, 2) each piece's centre (its azimuth is the reference for the returns').
+    Returns:
+        curve: (n,) median |residual| of the ``along`` positions of the returns of the piece's columns
+            after a least-squares fit per column on height and lateral position (a wall column is a
+            straight line; a tree crown's depth follows its round); 0 for a piece with no column.
+        offset_spread: (n,) rms over the piece's returns of the mean offset of their stretch;
+        within: (n,) rms of the returns' offsets about their stretch's mean.
+    """
+    curve, spread, within = np.zeros(n), np.zeros(n), np.zeros(n)
+    if len(piece) == 0:
+        return curve, spread, within
+    order = np.lexsort((along, piece))
+    p, t, off, q = piece[order], along[order], offset[order], pts[order]
+    new = np.ones(len(p), bool)
+    new[1:] = (p[1:] != p[:-1]) | (np.diff(t) > gap_m)
+    stretch = np.cumsum(new) - 1
+    m = int(stretch[-1]) + 1
+    count = np.bincount(stretch, minlength=m).astype(float)
+    per_piece = np.maximum(np.bincount(p, minlength=n), 1).astype(float)
+    centre = mean[p, 0] + 1j * mean[p, 1]
+    azimuth = np.angle((q[:, 0] + 1j * q[:, 1]) * np.conj(centre))
+    lo, hi = np.full(m, np.inf), np.full(m, -np.inf)
+    np.minimum.at(lo, stretch, azimuth)
+    np.maximum.at(hi, stretch, azimuth)
+    column = (count >= 4) & (hi - lo < column_rad)
+
+    def centred(v):
+        return v - (np.bincount(stretch, v, m) / count)[stretch]
+
+    x = np.column_stack([np.ones(len(t)), centred(q[:, 2]), centred(azimuth * np.abs(centre))])
+    y = centred(t)
+    normal = np.stack([np.stack([np.bincount(stretch, x[:, i] * x[:, j], m) for j in range(3)], -1)
+                       for i in range(3)], -2)                                                       # (m, 3, 3)
+    rhs = np.stack([np.bincount(stretch, x[:, i] * y, m) for i in range(3)], -1)[..., None]           # (m, 3, 1)
+    coef = (np.linalg.pinv(normal, rcond=1e-9) @ rhs)[..., 0]
+    residual = np.abs(y - (x * coef[stretch]).sum(-1))
+    use = column[stretch]
+    if use.any():
+        has = np.bincount(p[use], minlength=n) > 0
+        curve[has] = _group_median(p[use], residual[use], n)[has]
+    stretch_offset = np.bincount(stretch, off, m) / count
+    spread = np.sqrt(np.bincount(p, stretch_offset[stretch] ** 2, n) / per_piece)
+    within = np.sqrt(np.bincount(p, (off - stretch_offset[stretch]) ** 2, n) / per_piece)
+    return curve, spread, within
 
 
 def _narrow_column_curve(pts: np.ndarray, along: np.ndarray, piece: np.ndarray, mean: np.ndarray, a: np.ndarray,
@@ -1209,6 +1294,14 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
         # Seen in one or two columns, a wall is where their slanted sheets of beams cut it: straight
         # lines in height and azimuth. A tree crown seen from afar curves (its depth follows its round).
         wall &= ~(two_columns & (m.column_curve > config.max_column_curve_m))
+        # Seen in columns metres apart (a far wall at grazing incidence), each column is such a line, and
+        # the columns lie on one: a row of trees or parked cars seen that obliquely is neither.
+        sparse = ~two_columns & (m.max_gap > config.max_gap_m)
+        if m.sparse_curve is not None and config.sparse_curve_factor > 0:
+            wall &= ~(sparse & (m.sparse_curve > config.max_column_curve_m))
+        if m.sparse_offset is not None and config.sparse_offset_factor > 0:
+            wall &= ~(sparse & (m.sparse_offset > config.sparse_offset_factor * m.sparse_within
+                                + config.sparse_offset_floor_m))
     # A piece must be about as thin as this scan's long walls are (their spread is the sensor's noise).
     # (Not on pieces joined from single columns: seen at grazing incidence, the range noise lies along the
     # wall, which looks thinner than the sensor's noise.)
@@ -1216,6 +1309,8 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
     if typical_of.sum() >= 3:
         typical = float(np.median(m.rms[typical_of]))
         wall &= m.rms <= np.where(solid, config.solid_rms_factor, config.short_rms_factor) * typical
+        if m.sparse_curve is not None and config.sparse_curve_factor > 0 and azimuth_step_deg:
+            wall &= ~(sparse & (m.sparse_curve > config.sparse_curve_factor * typical))
     sel = np.flatnonzero(wall)
     if len(sel) == 0:
         return ScanSegments.empty()
