@@ -1130,12 +1130,7 @@ def sparse_columns(pts: np.ndarray, along: np.ndarray, offset: np.ndarray, piece
         return v - (np.bincount(stretch, v, m) / count)[stretch]
 
     x = np.column_stack([np.ones(len(t)), centred(q[:, 2]), centred(azimuth * np.abs(centre))])
-    y = centred(t)
-    normal = np.stack([np.stack([np.bincount(stretch, x[:, i] * x[:, j], m) for j in range(3)], -1)
-                       for i in range(3)], -2)                                                       # (m, 3, 3)
-    rhs = np.stack([np.bincount(stretch, x[:, i] * y, m) for i in range(3)], -1)[..., None]           # (m, 3, 1)
-    coef = (np.linalg.pinv(normal, rcond=1e-9) @ rhs)[..., 0]
-    residual = np.abs(y - (x * coef[stretch]).sum(-1))
+    residual = _group_residuals(x, centred(t), stretch, m, np.ones(len(t)))
     use = column[stretch]
     if use.any():
         has = np.bincount(p[use], minlength=n) > 0
@@ -1188,14 +1183,21 @@ def _column_curve(pts: np.ndarray, along: np.ndarray, piece: np.ndarray, mean: n
     y = along
     weight = np.ones(len(y))
     for _ in range(2):                                   # fit, then refit without returns 3 medians off
-        normal = np.stack([np.stack([np.bincount(piece, weight * x[:, i] * x[:, j], n) for j in range(4)], -1)
-                           for i in range(4)], -2)                                                       # (n, 4, 4)
-        rhs = np.stack([np.bincount(piece, weight * x[:, i] * y, n) for i in range(4)], -1)[..., None]  # (n, 4, 1)
-        coef = (np.linalg.pinv(normal, rcond=1e-9) @ rhs)[..., 0]                                     # (n, 4)
-        residual = np.abs(y - (x * coef[piece]).sum(-1))
+        residual = _group_residuals(x, y, piece, n, weight)
         median = _group_median(piece, residual, n)
         weight = (residual <= 3 * median[piece] + 1e-9).astype(float)
     return median
+
+
+def _group_residuals(x: np.ndarray, y: np.ndarray, group: np.ndarray, n: int, weight: np.ndarray) -> np.ndarray:
+    """(K,) |y - x @ coef[group]| after a weighted least-squares fit per group: ``x`` (K, P) regressors, ``y``
+    (K,), ``group`` (K,) labels 0..n-1, ``weight`` (K,). Rank-deficient groups take the minimum-norm fit."""
+    p = x.shape[1]
+    normal = np.stack([np.stack([np.bincount(group, weight * x[:, i] * x[:, j], n) for j in range(p)], -1)
+                       for i in range(p)], -2)                                                       # (n, P, P)
+    rhs = np.stack([np.bincount(group, weight * x[:, i] * y, n) for i in range(p)], -1)[..., None]  # (n, P, 1)
+    coef = (np.linalg.pinv(normal, rcond=1e-9) @ rhs)[..., 0]                                     # (n, P)
+    return np.abs(y - (x * coef[group]).sum(-1))
 
 
 def _max_gap(piece: np.ndarray, along: np.ndarray, n: int) -> np.ndarray:
