@@ -64,7 +64,8 @@ wall's points away. One pass, no randomness:
    far wall seen at grazing incidence, metres apart) must be straight in each column
    (``sparse_curve_factor``) and its columns must lie on one line (``sparse_offset_factor``), which
    lets ``link_grazing_deg`` reach 87 deg (with ``link_grazing_max_m``) without rows of trees or
-   parked cars seen that obliquely.
+   parked cars seen that obliquely; and it must hide what is behind it (``sparse_max_through``, see
+   :func:`seen_through`: a row of trees or poles lined up like a wall lets most rays through).
    *Long pieces* (``solid_length_m``) are no tree crown: they may float (a wall seen over the house
    in front of it), may be seen over a narrow band when they stop the top beam (``solid_min_span_m``:
    a facade behind a hedge, or up a slope under the beam), and may have few returns
@@ -136,6 +137,7 @@ class VerticalStructureConfig(Section):
     sparse_curve_factor: float = Field(0.0, ge=0, description="a wall whose returns leave gaps longer than max_gap_m (a far wall seen at grazing incidence: columns of returns metres apart) is straight in each column: its returns' positions along it within max_column_curve_m and within this many times the scan's typical wall spread (median) of a fit on height and lateral position per column (a tree crown's depth follows its round; 0 = off, the default: not adopted, see docs/results.md) ...")
     sparse_offset_factor: float = Field(0.0, ge=0, description="... and its columns lie on one line: their mean offsets from it spread (rms) at most this many times the spread within the columns plus sparse_offset_floor_m (parked cars in a row are not coplanar; 0 = off, the default)")
     sparse_offset_floor_m: float = Field(0.01, ge=0, description="... (see sparse_offset_factor)")
+    sparse_max_through: float = Field(0.0, ge=0, le=1, description="... and it hides what is behind it: of the returns whose rays cross its line within its extent and height, at most this share lie beyond it (a row of trees or poles seen obliquely lets most rays through; 0 = off, the default: not adopted, see docs/results.md)")
     max_column_curve_m: float = Field(0.07, gt=0, description="a wall spanning fewer than min_azimuth_steps has its returns' positions along it within this (median) of a fit on their height, azimuth and product (one or two columns of returns cut a wall in straight lines; a tree crown seen from afar curves)")
     min_span_m: float = Field(0.8, ge=0, description="a wall's returns span at least this much in height ...")
     min_top_m: float = Field(1.5, ge=0, description="... and reach at least this high above the local ground, and it ...")
@@ -164,6 +166,14 @@ BEHIND_M = 1.0
 """How far behind a wall's line returns count as seen through it (metres) ..."""
 BEHIND_MAX_HEIGHT_M = 1.8
 """... if they are at most this high above the ground (a tree crown behind a low wall does not count)."""
+THROUGH_BEYOND_M = 0.5
+"""A return this much farther along its ray than where the ray crosses a piece's line was seen through
+the piece (metres; more than the range noise, less than any gap between a row of trees and a facade)."""
+THROUGH_BAND_M = (0.2, 0.3)
+"""Rays count for the see-through share when they cross a piece's line this far above its lowest and below
+its highest return (metres): a ray over the top or under the bottom of a wall passes it legitimately."""
+NOISE_MAX_INCIDENCE_DEG = 60.0
+"""The scan's range noise is measured on its long walls seen at most this far from head-on (degrees)."""
 TOP_BEAM_DEG = 0.1
 """Returns within this elevation of the top beam are the top beam's (degrees)."""
 MIN_SEEN_FRACTION = 0.25
@@ -983,6 +993,9 @@ class PieceMeasures:
             wall seen at grazing incidence, see ``merge_collinear``); None = none was.
         sparse_curve, sparse_offset, sparse_within: (n,) see :func:`sparse_columns`; None when neither
             ``sparse_curve_factor`` nor ``sparse_offset_factor`` is set.
+        through: (n,) share of the returns whose rays cross the piece's line that lie beyond it (see
+            :func:`seen_through`), for the pieces with gaps longer than ``max_gap_m`` spanning at least
+            ``min_azimuth_steps`` (0 for the others); None when ``sparse_max_through`` is not set.
     """
 
     a: np.ndarray
@@ -1001,6 +1014,7 @@ class PieceMeasures:
     sparse_curve: np.ndarray | None = None
     sparse_offset: np.ndarray | None = None
     sparse_within: np.ndarray | None = None
+    through: np.ndarray | None = None
 
     @property
     def length(self) -> np.ndarray:
@@ -1065,6 +1079,7 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
     col_median = _group_median(col, offset, int(col.max()) + 1)
     a = mean + t_min[:, None] * u
     b = mean + t_max[:, None] * u
+    max_gap = _max_gap(piece, along, n)
     # z_mean: the height at which the line was fitted (the mean of the returns that placed it), where
     # segments_to_world lifts it; with a tilted sensor another height would shift the wall sideways.
     return PieceMeasures(a=a, b=b, count=count, n_points=all_count, z_mean=np.bincount(piece, xyz[member, 2], n) / safe,
@@ -1072,10 +1087,76 @@ def piece_measures(xyz: np.ndarray, height: np.ndarray, cells: Cells, label: np.
                          rms=np.sqrt(np.bincount(piece, offset ** 2, n) / safe),
                          core=np.bincount(piece, np.abs(offset - col_median[col]) <= config.core_m, n) / safe,
                          behind=_points_behind(cells, a, b, config) / safe,
-                         max_gap=_max_gap(piece, along, n),
+                         max_gap=max_gap,
                          column_curve=_narrow_column_curve(_rows(xyz, member), along, piece, mean, a, b, config),
                          column_chain=None if chain is None else np.isin(labels, label[chain]),
-                         **_sparse_measures(_rows(xyz, member), along, offset, piece, mean, n, config))
+                         **_sparse_measures(_rows(xyz, member), along, offset, piece, mean, n, config),
+                         **_through_measure(xyz, a, b, z_min, z_max, max_gap, config))
+
+
+def _through_measure(xyz: np.ndarray, a: np.ndarray, b: np.ndarray, z_min: np.ndarray, z_max: np.ndarray,
+                     max_gap: np.ndarray, config: VerticalStructureConfig) -> dict:
+    """The ``through`` field of :class:`PieceMeasures` (none when ``sparse_max_through`` is off)."""
+    step = _configured_step_deg(config)
+    if step is None or config.sparse_max_through <= 0:
+        return {}
+    through = np.zeros(len(a))
+    sparse = np.flatnonzero(~_few_columns(a, b, step, config) & (max_gap > config.max_gap_m))
+    if len(sparse):
+        through[sparse] = seen_through(xyz, a[sparse], b[sparse], z_min[sparse], z_max[sparse], np.deg2rad(step))
+    return {"through": through}
+
+
+def seen_through(xyz: np.ndarray, a: np.ndarray, b: np.ndarray, z_min: np.ndarray, z_max: np.ndarray,
+                 step_rad: float) -> np.ndarray:
+    """(n,) share of the returns whose rays cross each line a-b that lie beyond it: a wall hides what is
+    behind it; a row of trees, poles or parked cars seen obliquely, lined up like a wall, does not.
+
+    A return counts for a line when its azimuth (as seen from the sensor) lies within the line's, half an
+    azimuth step in from either end, and its ray crosses the line between ``THROUGH_BAND_M`` above the
+    line's ``z_min`` and below its ``z_max``; it lies beyond when it is more than ``THROUGH_BEYOND_M``
+    farther along its ray. Lines no counting ray crosses get 0.
+
+    Args:
+        xyz: (M, 3) returns in a frame whose origin is the sensor and whose z axis is vertical (metres).
+        a, b: (n, 2) the lines' ends (same frame); z_min, z_max: (n,) their returns' height range.
+        step_rad: the scan's azimuth step (radians).
+    """
+    out = np.zeros(len(a))
+    azimuth = np.arctan2(xyz[:, 1], xyz[:, 0])
+    order = np.argsort(azimuth)
+    sorted_azimuth = azimuth[order]
+    centre = np.angle((a[:, 0] + b[:, 0]) + 1j * (a[:, 1] + b[:, 1]))
+    to_centre = np.exp(-1j * centre)
+    for k in range(len(a)):                              # a line not through the sensor spans < pi
+        lo, hi = np.angle((a[k, 0] + 1j * a[k, 1]) * to_centre[k]), np.angle((b[k, 0] + 1j * b[k, 1]) * to_centre[k])
+        lo, hi = min(lo, hi) + step_rad / 2, max(lo, hi) - step_rad / 2
+        if hi <= lo:
+            continue
+        rows = []
+        for start, end in _wrapped_ranges(centre[k] + lo, centre[k] + hi):
+            rows.append(order[np.searchsorted(sorted_azimuth, start):np.searchsorted(sorted_azimuth, end)])
+        p = xyz[np.concatenate(rows)]
+        normal = np.array([a[k, 1] - b[k, 1], b[k, 0] - a[k, 0]])
+        rng = np.hypot(p[:, 0], p[:, 1])
+        towards = (p[:, 0] * normal[0] + p[:, 1] * normal[1]) / np.maximum(rng, 1e-9)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cross = (a[k] @ normal) / towards                # range at which each ray crosses the line
+            cross_z = p[:, 2] * cross / rng
+        counting = (cross > 0) & (cross_z > z_min[k] + THROUGH_BAND_M[0]) & (cross_z < z_max[k] - THROUGH_BAND_M[1])
+        n_counting = int(counting.sum())
+        if n_counting:
+            out[k] = float((counting & (rng > cross + THROUGH_BEYOND_M)).sum()) / n_counting
+    return out
+
+
+def _wrapped_ranges(start: float, end: float) -> list[tuple[float, float]]:
+    """The azimuth range ``start``..``end`` (radians, ``end - start`` < 2 pi) as ranges within [-pi, pi]."""
+    if start < -np.pi:
+        return [(start + 2 * np.pi, np.pi), (-np.pi, end)]
+    if end > np.pi:
+        return [(start, np.pi), (-np.pi, end - 2 * np.pi)]
+    return [(start, end)]
 
 
 def _sparse_measures(pts: np.ndarray, along: np.ndarray, offset: np.ndarray, piece: np.ndarray, mean: np.ndarray,
@@ -1304,6 +1385,8 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
         if m.sparse_offset is not None and config.sparse_offset_factor > 0:
             wall &= ~(sparse & (m.sparse_offset > config.sparse_offset_factor * m.sparse_within
                                 + config.sparse_offset_floor_m))
+        if m.through is not None and config.sparse_max_through > 0:
+            wall &= ~(sparse & (m.through > config.sparse_max_through))
     # A piece must be about as thin as this scan's long walls are (their spread is the sensor's noise).
     # (Not on pieces joined from single columns: seen at grazing incidence, the range noise lies along the
     # wall, which looks thinner than the sensor's noise.)
@@ -1312,7 +1395,15 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
         typical = float(np.median(m.rms[typical_of]))
         wall &= m.rms <= np.where(solid, config.solid_rms_factor, config.short_rms_factor) * typical
         if m.sparse_curve is not None and config.sparse_curve_factor > 0 and azimuth_step_deg:
-            wall &= ~(sparse & (m.sparse_curve > config.sparse_curve_factor * typical))
+            # A column's returns lie along its ray, so they scatter along the wall by the range noise; a
+            # wall's returns scatter across it by that noise times the cosine of their incidence: the
+            # scan's range noise is its long walls' spread over that cosine, taken on the walls seen
+            # within NOISE_MAX_INCIDENCE_DEG of head-on (an oblique wall's spread would underrate it).
+            cos_incidence = np.sqrt(np.maximum(1.0 - along_ray ** 2, 0.0))
+            noise_of = typical_of & (cos_incidence >= np.cos(np.deg2rad(NOISE_MAX_INCIDENCE_DEG)))
+            if noise_of.sum() >= 3:
+                noise = float(np.median(m.rms[noise_of] / cos_incidence[noise_of]))
+                wall &= ~(sparse & (m.sparse_curve > config.sparse_curve_factor * noise))
     sel = np.flatnonzero(wall)
     if len(sel) == 0:
         return ScanSegments.empty()

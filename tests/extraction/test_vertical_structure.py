@@ -427,7 +427,8 @@ def test_a_scan_whose_structure_is_all_high_up_gives_its_wall():
 
 
 # The candidate for walls seen 85-87 deg from head-on (off by default, not adopted: docs/results.md).
-GRAZING_87 = dict(link_grazing_deg=87.0, link_grazing_max_m=8.0, sparse_curve_factor=2.0, sparse_offset_factor=3.0)
+GRAZING_87 = dict(link_grazing_deg=87.0, link_grazing_max_m=8.0, sparse_curve_factor=2.0, sparse_offset_factor=3.0,
+                  sparse_max_through=0.4)
 
 
 def test_linking_columns_up_to_87_deg_finds_a_side_along_the_street_but_not_a_row_of_trees_behind():
@@ -472,6 +473,40 @@ def test_a_sparse_piece_whose_columns_are_not_coplanar_is_no_wall():
     assert len(wall_segments(m, VerticalStructureConfig(), 0.2)) == 2                       # off by default
     dense = PieceMeasures(**{**m.__dict__, "max_gap": 0.5 * one})                           # no gap: not sparse
     assert len(wall_segments(dense, VerticalStructureConfig(sparse_offset_factor=3.0), 0.2)) == 2
+
+
+def test_a_sparse_piece_that_lets_rays_through_is_no_wall():
+    """A row of trees or poles lined up like a wall lets most rays that cross its line go on beyond it; a
+    wall hides what is behind it. Only pieces with gaps (sparse) are asked, and only when the test is on."""
+    from featmap.extraction.vertical_structure import PieceMeasures, wall_segments
+
+    one = np.ones(2)
+    m = PieceMeasures(a=np.array([[40.0, 1.0], [40.0, -1.0]]), b=np.array([[50.0, 3.0], [50.0, -3.0]]),
+                      count=100 * one, n_points=100 * one, z_mean=0 * one, z_min=-1 * one, z_max=2 * one,
+                      rms=0.01 * one, core=one, behind=0 * one, max_gap=3.0 * one, column_curve=0 * one,
+                      through=np.array([0.05, 0.6]))
+    kept = wall_segments(m, VerticalStructureConfig(sparse_max_through=0.4), 0.2)
+    assert len(kept) == 1 and kept.segments[0][1] == pytest.approx(1.0)                    # the opaque one
+    assert len(wall_segments(m, VerticalStructureConfig(), 0.2)) == 2                       # off by default
+    dense = PieceMeasures(**{**m.__dict__, "max_gap": 0.5 * one})                           # no gap: not sparse
+    assert len(wall_segments(dense, VerticalStructureConfig(sparse_max_through=0.4), 0.2)) == 2
+
+
+def test_a_facade_seen_obliquely_behind_a_row_of_poles_is_kept_by_the_grazing_candidate():
+    """Poles in a row 6 m in front of a facade cut it into stretches with gaps, so its pieces are sparse,
+    and every wall of the scan is seen 75-88 deg from head-on. A column's returns scatter along the wall by
+    the range noise, its returns across the wall by that noise times the cosine of the incidence: the
+    sparse_curve_factor bound takes the range noise from walls seen within 60 deg of head-on (here none),
+    not from these oblique walls' spread, which would reject the facade."""
+    poles = [{"kind": "pole", "position": [25.0 + 6.0 * k, -3.0], "radius": 0.15, "height": 6.0} for k in range(6)]
+    scan = cast_scan(poles + [building(20, -15, 90, -9, 12.0)], sensor="vls128", azimuth_step=0.235)
+
+    def facade(result):
+        return [s for s in result.segments if on_line(s, [20, -9], [90, -9], 0.05)]
+
+    assert len(facade(extract_vertical_structure(scan))) >= 1
+    found = facade(extract_vertical_structure(scan, VerticalStructureConfig(**GRAZING_87)))
+    assert sum(abs(s[2] - s[0]) for s in found) > 50.0
 
 
 def test_grazing_links_can_be_capped_in_range():

@@ -118,3 +118,36 @@ def test_sparse_columns_measure_straight_and_coplanar_columns():
     assert spread[0] == pytest.approx(np.sqrt(2 / 3) * 0.05, rel=1e-6) and within[0] == pytest.approx(0.001)
     empty = sparse_columns(pts[:0], along[:0], flat[:0], piece[:0], mean, 1, 1.0, 0.01)
     assert [v.tolist() for v in empty] == [[0.0]] * 3
+
+
+def _rays_to(line_x: float, azimuths_deg: np.ndarray, heights: np.ndarray, beyond: np.ndarray) -> np.ndarray:
+    """(N, 3) returns of rays at ``azimuths_deg`` x ``heights`` (the height where each ray crosses the line
+    x = ``line_x``, for ``line_x`` > 0; -x for < 0): on it, or 10 m farther along the ray where ``beyond``
+    (N,) is True."""
+    az, z = (g.ravel() for g in np.meshgrid(np.deg2rad(azimuths_deg), heights))
+    cross = abs(line_x) / np.cos(az)                                      # range to the line along each ray
+    rng = np.where(beyond, cross + 10.0, cross)
+    sign = np.sign(line_x)
+    return np.column_stack([sign * rng * np.cos(az), sign * rng * np.sin(az), z * rng / cross])
+
+
+@pytest.mark.parametrize("line_x", [10.0, -10.0])          # -10: the line straddles azimuth +-180 deg
+def test_seen_through_is_the_share_of_crossing_rays_that_return_beyond_the_line(line_x):
+    from featmap.extraction.vertical_structure import seen_through
+
+    azimuths = np.arange(-20.0, 20.01, 0.5)                   # the line spans -26.6 .. 26.6 deg
+    heights = np.linspace(0.5, 2.5, 5)
+    n = len(azimuths) * len(heights)
+    a, b = np.array([[line_x, -5.0]]), np.array([[line_x, 5.0]])
+    z_lo, z_hi = np.array([0.0]), np.array([3.0])
+    step = np.deg2rad(0.5)
+    wall = _rays_to(line_x, azimuths, heights, np.zeros(n, bool))
+    assert seen_through(wall, a, b, z_lo, z_hi, step) == pytest.approx([0.0])
+    one_side = np.tile(azimuths < 0, len(heights))           # through on one side of the line's middle
+    trees = _rays_to(line_x, azimuths, heights, one_side)
+    assert seen_through(trees, a, b, z_lo, z_hi, step) == pytest.approx([one_side.mean()])
+    over_the_top = _rays_to(line_x, azimuths, np.array([3.5, 5.0]), np.ones(2 * len(azimuths), bool))
+    assert seen_through(np.concatenate([wall, over_the_top]), a, b, z_lo, z_hi, step) == pytest.approx([0.0])
+    outside = _rays_to(line_x, np.array([30.0, 40.0]), heights, np.ones(10, bool))   # beside the line's azimuths
+    assert seen_through(np.concatenate([wall, outside]), a, b, z_lo, z_hi, step) == pytest.approx([0.0])
+    assert seen_through(wall[:0], a, b, z_lo, z_hi, step) == pytest.approx([0.0])            # no ray: 0
