@@ -456,40 +456,30 @@ def test_linking_columns_up_to_87_deg_finds_a_side_along_the_street_but_not_a_ro
     assert len(side(candidate)) == 1 and abs(side(candidate)[0][2] - side(candidate)[0][0]) > 8.0
 
 
-def test_a_sparse_piece_whose_columns_are_not_coplanar_is_no_wall():
-    """Parked cars in a row, seen at grazing incidence, give columns of returns that each lie on a plane
-    but not on one: their mean offsets spread more than sparse_offset_factor times the spread within
-    them (plus sparse_offset_floor_m). A far wall's columns lie on one line."""
+@pytest.mark.parametrize("setting, measures", [
+    # Parked cars in a row, seen at grazing incidence, give columns of returns that each lie on a plane
+    # but not on one: their mean offsets spread more than sparse_offset_factor times the spread within
+    # them (plus sparse_offset_floor_m). A far wall's columns lie on one line.
+    ({"sparse_offset_factor": 3.0}, {"sparse_curve": np.full(2, 0.005), "sparse_offset": np.array([0.002, 0.03]),
+                                     "sparse_within": np.array([0.002, 0.003])}),
+    # A row of trees or poles lined up like a wall lets most rays that cross its line go on beyond it; a
+    # wall hides what is behind it.
+    ({"sparse_max_through": 0.4}, {"through": np.array([0.05, 0.6])}),
+], ids=["columns_not_coplanar", "lets_rays_through"])
+def test_a_sparse_piece_failing_an_opt_in_test_is_no_wall(setting, measures):
+    """Of two pieces with gaps (sparse), the first passes the test ``setting`` turns on and the second
+    does not; only sparse pieces are asked, and only when the test is on."""
     from featmap.extraction.vertical_structure import PieceMeasures, wall_segments
 
     one = np.ones(2)
     m = PieceMeasures(a=np.array([[40.0, 1.0], [40.0, -1.0]]), b=np.array([[50.0, 3.0], [50.0, -3.0]]),
                       count=100 * one, n_points=100 * one, z_mean=0 * one, z_min=-1 * one, z_max=2 * one,
-                      rms=0.01 * one, core=one, behind=0 * one, max_gap=3.0 * one, column_curve=0 * one,
-                      sparse_curve=0.005 * one, sparse_offset=np.array([0.002, 0.03]),
-                      sparse_within=np.array([0.002, 0.003]))
-    kept = wall_segments(m, VerticalStructureConfig(sparse_offset_factor=3.0), 0.2)
-    assert len(kept) == 1 and kept.segments[0][1] == pytest.approx(1.0)                    # the coplanar one
+                      rms=0.01 * one, core=one, behind=0 * one, max_gap=3.0 * one, column_curve=0 * one, **measures)
+    kept = wall_segments(m, VerticalStructureConfig(**setting), 0.2)
+    assert len(kept) == 1 and kept.segments[0][1] == pytest.approx(1.0)                    # the first one
     assert len(wall_segments(m, VerticalStructureConfig(), 0.2)) == 2                       # off by default
     dense = PieceMeasures(**{**m.__dict__, "max_gap": 0.5 * one})                           # no gap: not sparse
-    assert len(wall_segments(dense, VerticalStructureConfig(sparse_offset_factor=3.0), 0.2)) == 2
-
-
-def test_a_sparse_piece_that_lets_rays_through_is_no_wall():
-    """A row of trees or poles lined up like a wall lets most rays that cross its line go on beyond it; a
-    wall hides what is behind it. Only pieces with gaps (sparse) are asked, and only when the test is on."""
-    from featmap.extraction.vertical_structure import PieceMeasures, wall_segments
-
-    one = np.ones(2)
-    m = PieceMeasures(a=np.array([[40.0, 1.0], [40.0, -1.0]]), b=np.array([[50.0, 3.0], [50.0, -3.0]]),
-                      count=100 * one, n_points=100 * one, z_mean=0 * one, z_min=-1 * one, z_max=2 * one,
-                      rms=0.01 * one, core=one, behind=0 * one, max_gap=3.0 * one, column_curve=0 * one,
-                      through=np.array([0.05, 0.6]))
-    kept = wall_segments(m, VerticalStructureConfig(sparse_max_through=0.4), 0.2)
-    assert len(kept) == 1 and kept.segments[0][1] == pytest.approx(1.0)                    # the opaque one
-    assert len(wall_segments(m, VerticalStructureConfig(), 0.2)) == 2                       # off by default
-    dense = PieceMeasures(**{**m.__dict__, "max_gap": 0.5 * one})                           # no gap: not sparse
-    assert len(wall_segments(dense, VerticalStructureConfig(sparse_max_through=0.4), 0.2)) == 2
+    assert len(wall_segments(dense, VerticalStructureConfig(**setting), 0.2)) == 2
 
 
 def test_a_facade_seen_obliquely_behind_a_row_of_poles_is_kept_by_the_grazing_candidate():
