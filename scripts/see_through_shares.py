@@ -33,6 +33,7 @@ from rich.table import Table
 from featmap.datasets import KittiRawDataset
 from featmap.evaluation import load_simulator_truth
 from featmap.evaluation.observation_metrics import lies_on_matrix
+from featmap.evaluation.truth_metrics import sample_segments
 from featmap.evaluation.wall_lists import read_wall_lists, score_wall_list
 from featmap.extraction.base import segments_to_world
 from featmap.extraction import vertical_structure as vs
@@ -73,20 +74,18 @@ def extract_with_shares(points: np.ndarray, config) -> tuple:
     m, walls, step = seen["measures"], seen["walls"].segments, seen["step"]
     index = [int(np.flatnonzero((m.a == w[:2]).all(1) & (m.b == w[2:]).all(1))[0]) for w in walls]
     a, b = m.a[index], m.b[index]
-    sparse = ~vs._few_columns(a, b, step, seen["config"]) & (m.max_gap[index] > config.max_gap_m)
+    sparse = vs.sparse_pieces(a, b, m.max_gap[index], step, seen["config"])
     return found, vs.seen_through(seen["xyz"], a, b, m.z_min[index], m.z_max[index], np.deg2rad(step)), sparse
 
 
-def on_walls(world_segments: np.ndarray, walls: np.ndarray, step_m: float = 0.1) -> np.ndarray:
-    """(K,) True where at least half of each (K, 4) segment lies on one of the (W, 4) ``walls``."""
-    out = np.zeros(len(world_segments), bool)
-    for k, s in enumerate(world_segments):
-        length = np.hypot(*(s[2:] - s[:2]))
-        n = max(int(length / step_m), 2)
-        samples = s[:2] + np.linspace(0, 1, n)[:, None] * (s[2:] - s[:2])
-        direction = np.repeat(((s[2:] - s[:2]) / max(length, 1e-9))[None], n, 0)
-        out[k] = lies_on_matrix(samples, direction, walls).any(1).mean() >= 0.5
-    return out
+def on_walls(world_segments: np.ndarray, walls: np.ndarray) -> np.ndarray:
+    """(K,) True where at least half of each (K, 4) segment's length lies on one of the (W, 4) ``walls``."""
+    samples, owner, weight = sample_segments(world_segments)
+    d = world_segments[:, 2:] - world_segments[:, :2]
+    d = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)[:, None]
+    on = lies_on_matrix(samples, d[owner], walls).any(1)
+    total = np.bincount(owner, weight, len(world_segments))
+    return np.bincount(owner, weight * on, len(world_segments)) >= 0.5 * total
 
 
 def main() -> int:
@@ -103,7 +102,7 @@ def main() -> int:
         print(f"see_through_shares: --seeds {held} are held out; use tuning or probe worlds", file=sys.stderr)
         return 2
     config = load_config(None, overrides=args.overrides).extraction.vertical_structure
-    groups: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {"simulated": [], "real": []}
+    groups: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {"simulated": [], "real": []}
     for seed in args.seeds:
         root = args.sim_root / "tuning" / f"procedural_{seed}"
         if not root.exists():

@@ -579,6 +579,14 @@ def _configured_step_deg(config: VerticalStructureConfig) -> float | None:
     return config.link_azimuth_deg / config.link_azimuth_steps if config.link_azimuth_steps > 0 else None
 
 
+def sparse_pieces(a: np.ndarray, b: np.ndarray, max_gap: np.ndarray, step_deg: float,
+                  config: VerticalStructureConfig) -> np.ndarray:
+    """(K,) True where the piece a-b ((K, 2) ends) is *sparse*: its returns leave a gap longer than
+    ``max_gap_m`` (``max_gap`` (K,)) and it spans at least ``min_azimuth_steps`` of ``step_deg`` (columns
+    of a far wall seen at grazing incidence, metres apart; not two columns with nothing between)."""
+    return ~_few_columns(a, b, step_deg, config) & (max_gap > config.max_gap_m)
+
+
 def _few_columns(a: np.ndarray, b: np.ndarray, step_deg: float, config: VerticalStructureConfig) -> np.ndarray:
     """(K,) True where the piece a-b ((K, 2) ends) spans fewer than ``min_azimuth_steps`` azimuth steps
     of ``step_deg`` as seen from the sensor: one or two columns of returns."""
@@ -1101,7 +1109,7 @@ def _through_measure(xyz: np.ndarray, a: np.ndarray, b: np.ndarray, z_min: np.nd
     if step is None or config.sparse_max_through <= 0:
         return {}
     through = np.zeros(len(a))
-    sparse = np.flatnonzero(~_few_columns(a, b, step, config) & (max_gap > config.max_gap_m))
+    sparse = np.flatnonzero(sparse_pieces(a, b, max_gap, step, config))
     if len(sparse):
         through[sparse] = seen_through(xyz, a[sparse], b[sparse], z_min[sparse], z_max[sparse], np.deg2rad(step))
     return {"through": through}
@@ -1379,7 +1387,7 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
         wall &= ~(two_columns & (m.column_curve > config.max_column_curve_m))
         # Seen in columns metres apart (a far wall at grazing incidence), each column is such a line, and
         # the columns lie on one: a row of trees or parked cars seen that obliquely is neither.
-        sparse = ~two_columns & (m.max_gap > config.max_gap_m)
+        sparse = sparse_pieces(m.a, m.b, m.max_gap, azimuth_step_deg, config)
         if m.sparse_curve is not None and config.sparse_curve_factor > 0:
             wall &= ~(sparse & (m.sparse_curve > config.max_column_curve_m))
         if m.sparse_offset is not None and config.sparse_offset_factor > 0:
