@@ -97,6 +97,9 @@ def main() -> int:
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     args = parser.parse_args()
     console = Console()
+    if args.every < 1:
+        print(f"see_through_shares: --every must be at least 1, got {args.every}", file=sys.stderr)
+        return 2
     held = sorted(set(args.seeds) & set(HELDOUT_SEEDS))
     if held:
         print(f"see_through_shares: --seeds {held} are held out; use tuning or probe worlds", file=sys.stderr)
