@@ -61,6 +61,7 @@ from featmap.errors import FeatmapError
 from featmap.evaluation import load_simulator_truth, truth_metrics
 from featmap.evaluation.observation_metrics import match_observations, truth_from_observations, union_coverage
 from featmap.fusion import fuse
+from featmap.io.segments_csv import SegmentTable
 from featmap.io.sim_truth import read_observations
 from featmap.pipeline import SegmentStore, load_config
 from featmap.pipeline.executor import ProcessExecutor, SerialExecutor
@@ -137,9 +138,10 @@ class WorldResult:
     methods: dict
 
 
-def score_world(root: Path, frames: list[int], segments: np.ndarray, scan: np.ndarray, rms: np.ndarray, config,
-                methods: list[str]) -> dict:
-    """Observation recall, coverage and every method's fused metrics for one world's extracted segments."""
+def score_world(root: Path, frames: list[int], table: SegmentTable, config, methods: list[str]) -> dict:
+    """Observation recall, coverage and every method's fused metrics for one world's extracted segments
+    (``table``: world frame, with the extraction's per-segment columns)."""
+    segments, scan = table.segments, table.scan
     ds = KittiRawDataset(root, DRIVE)
     truth_dir = ds.location / "truth"
     obs = read_observations(truth_dir, frames)
@@ -158,7 +160,7 @@ def score_world(root: Path, frames: list[int], segments: np.ndarray, scan: np.nd
            "segment_coverage": union_coverage(segments, truth), "methods": {}}
     for name in methods:
         start = time.perf_counter()
-        result = fuse(name, segments, scan, config.fusion, rms=rms)
+        result = fuse(name, segments, scan, config.fusion, rms=table.extra.get("rms"), max_gap=table.extra.get("max_gap"))
         seconds = time.perf_counter() - start
         metrics = truth_metrics(result.segments, truth)
         metrics["fusion_seconds"] = seconds
@@ -346,8 +348,7 @@ def _run(args, console: Console) -> int:
             table = extraction.world_table()
             frames_of[seed] = extraction.frames
             extracted_now += extraction.extracted_now
-            per_seed[seed] = {"segments": [table.segments], "scan": [table.scan], "rms": [table.extra["rms"]],
-                              "ms": [1000 * t for t in extraction.scan_seconds],
+            per_seed[seed] = {"table": table, "ms": [1000 * t for t in extraction.scan_seconds],
                               "points": [len(ds[0].points)]}
     wall_seconds = time.perf_counter() - start
     if extracted_now < sum(len(f) for f in frames_of.values()):
@@ -357,16 +358,14 @@ def _run(args, console: Console) -> int:
     results = []
     for seed in seeds:
         acc = per_seed[seed]
-        segments = np.concatenate(acc["segments"]) if acc["segments"] else np.zeros((0, 4))
-        scan = np.concatenate(acc["scan"]) if acc["scan"] else np.zeros(0, np.int64)
-        rms = np.concatenate(acc["rms"]) if acc["rms"] else np.zeros(0)
+        table = acc["table"]
         root = drive_root(args.sim_root, args.split, seed)
-        scored = score_world(root, frames_of[seed], segments, scan, rms, config, methods)
+        scored = score_world(root, frames_of[seed], table, config, methods)
         g = generate(seed).settings
         label = f"{g.sensor.name} {g.sensor.azimuth_step_deg:.2f}° {100 * g.noise_m:.1f}cm {100 * g.dropout:.0f}%"
         results.append(WorldResult(seed, label, len(frames_of[seed]), scored["n_obs"], scored["found"], scored["few"],
                                    scored["far"], scored["covered_m"], scored["observed_m"], scored["segment_coverage"],
-                                   len(segments), acc["ms"], acc["points"], scored["methods"]))
+                                   len(table), acc["ms"], acc["points"], scored["methods"]))
     print_report(results, methods, args.split, wall_seconds, workers, console, extracted_now)
     if args.docs:
         sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))

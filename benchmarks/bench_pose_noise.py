@@ -151,7 +151,8 @@ def fused(extraction: Extraction, poses: np.ndarray, methods: list[str], config)
     out = {}
     for name in methods:
         start = time.perf_counter()
-        out[name] = (fuse(name, table.segments, table.scan, config.fusion, rms=table.extra.get("rms")),
+        out[name] = (fuse(name, table.segments, table.scan, config.fusion, rms=table.extra.get("rms"),
+                           max_gap=table.extra.get("max_gap")),
                      time.perf_counter() - start)
     return out, table
 
@@ -251,7 +252,7 @@ def run_sim(args, config, methods, executor, console) -> list[dict]:
                 floor_poses = rigid_fit(e.poses, before_poses) @ e.poses
                 table = e.world_table(after_poses)
                 reference_map = fuse(methods[0], table.segments, table.scan, config.fusion,
-                                     rms=table.extra.get("rms")).segments
+                                     rms=table.extra.get("rms"), max_gap=table.extra.get("max_gap")).segments
                 walls = world.truth.walls[world.truth.observable()]
                 aligned_poses = align_to_truth(reference_map, walls) @ after_poses
                 row = {"world": world.name, "level": list(level), "noise_seed": k, "scans": len(e.frames),

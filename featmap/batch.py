@@ -683,7 +683,8 @@ def merged_inputs(run_dirs: list[tuple[str, str | Path]], align=None) -> MergedI
                 left_out[name] = (f"no geo origin, and another source than {runs[0][0]}: the two local frames "
                                   "cannot be related")
         runs = [r for r in runs if r[0] not in left_out]
-    segs, scans, drive_col, rms, drives, trajectories = [], [], [], [], [], {}
+    segs, scans, drive_col, drives, trajectories = [], [], [], [], {}
+    carried: dict[str, list] = {"rms": [], "max_gap": []}      # the columns the fusion reads
     offset = 0
     for index, (name, run_dir, m) in enumerate(runs):
         table = read_segments_csv(run_dir / "segments.csv")
@@ -692,7 +693,8 @@ def merged_inputs(run_dirs: list[tuple[str, str | Path]], align=None) -> MergedI
         segs.append(moved)
         scans.append(table.scan + offset)
         drive_col.append(np.full(len(table), index, np.int64))
-        rms.append(table.extra.get("rms"))
+        for column, parts in carried.items():
+            parts.append(table.extra.get(column))
         truth = m.reference_path("truth", run_dir)
         drives.append(MergedDrive(name=name, run_dir=str(run_dir), scan_offset=offset, segments=len(table),
                                   geo_frame=GeoRecord(**src.to_dict()) if src is not None else None,
@@ -706,8 +708,9 @@ def merged_inputs(run_dirs: list[tuple[str, str | Path]], align=None) -> MergedI
         offset += top + 1
     if segs:
         extra = {"drive": np.concatenate(drive_col).astype(float)}
-        if all(r is not None for r in rms):                     # the clean-view support rule needs every drive's
-            extra["rms"] = np.concatenate(rms).astype(float)
+        for column, parts in carried.items():
+            if all(p is not None for p in parts):                # used only when every drive has it
+                extra[column] = np.concatenate(parts).astype(float)
         table = SegmentTable(scan=np.concatenate(scans).astype(np.int64), segments=np.concatenate(segs).reshape(-1, 4),
                              extra=extra)
     else:

@@ -249,13 +249,15 @@ def _score(metrics: dict) -> dict:
 @dataclass(frozen=True)
 class SweepInputs:
     """What every combination is evaluated on: world-frame segments (N, 4), their scans (N,), their fit rms
-    (N,) or None, and the reference (an evaluator with its prepared reference) or None."""
+    (N,) or None, the reference (an evaluator with its prepared reference) or None, and their ``max_gap``
+    column (N,) or None."""
 
     segments: np.ndarray
     scan: np.ndarray
     rms: np.ndarray | None
     reference: tuple[Evaluator, Reference] | None
     digest: str
+    max_gap: np.ndarray | None = None
 
 
 def _evaluate(task: tuple[SweepInputs, str, str, dict]) -> tuple[str, dict]:
@@ -263,7 +265,7 @@ def _evaluate(task: tuple[SweepInputs, str, str, dict]) -> tuple[str, dict]:
     inputs, key, method, config_dict = task
     config = FeatmapConfig.model_validate(config_dict)
     start = time.perf_counter()
-    result = fuse(method, inputs.segments, inputs.scan, config.fusion, rms=inputs.rms)
+    result = fuse(method, inputs.segments, inputs.scan, config.fusion, rms=inputs.rms, max_gap=inputs.max_gap)
     seconds = time.perf_counter() - start
     metrics: dict = {"count": len(result)}
     if inputs.reference is not None:
@@ -395,7 +397,8 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
                 ref = Reference(footprints_truth(truth_path, frame, run_dir), str(truth_path.resolve()))
             reference = (ev, ref)
         digest = _digest(Path(spec.input).read_bytes(), _reference_content(truth_path), _reference_content(record))
-        return SweepInputs(table.segments, table.scan, table.extra.get("rms"), reference, digest)
+        return SweepInputs(table.segments, table.scan, table.extra.get("rms"), reference, digest,
+                           table.extra.get("max_gap"))
     if spec.batch is not None:
         return _batch_inputs(Path(spec.batch), base, cache_dir)
     if spec.dataset is not None:
@@ -416,11 +419,12 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
 
 
 def _table_inputs(table: SegmentTable, reference: tuple[Evaluator, Reference] | None) -> SweepInputs:
-    """Sweep inputs from a world-frame segment table (its ``rms`` column, when it has one, goes along)."""
-    rms = table.extra.get("rms")
-    parts = [table.segments.tobytes(), table.scan.tobytes()] + ([] if rms is None else [np.asarray(rms).tobytes()])
+    """Sweep inputs from a world-frame segment table (its ``rms`` and ``max_gap`` columns, when it has
+    them, go along)."""
+    rms, max_gap = table.extra.get("rms"), table.extra.get("max_gap")
+    parts = [table.segments.tobytes(), table.scan.tobytes()] + [np.asarray(c).tobytes() for c in (rms, max_gap) if c is not None]
     digest = _digest(*parts, _reference_content(reference[1].path if reference else None), _observation_content(reference))
-    return SweepInputs(table.segments, table.scan, rms, reference, digest)
+    return SweepInputs(table.segments, table.scan, rms, reference, digest, max_gap)
 
 
 def _observation_content(reference: tuple[Evaluator, Reference] | None) -> bytes:

@@ -79,7 +79,8 @@ def fusion_times(run_dir: Path, repeats: int = 7) -> dict[str, float]:
         times = []
         for _ in range(repeats):
             start = time.perf_counter()
-            fuse(m, run.segments.segments, run.segments.scan, run.config.fusion, rms=run.segments.extra.get("rms"))
+            fuse(m, run.segments.segments, run.segments.scan, run.config.fusion, rms=run.segments.extra.get("rms"),
+                 max_gap=run.segments.extra.get("max_gap"))
             times.append(time.perf_counter() - start)
         out[m] = statistics.median(times)
     return out
@@ -90,7 +91,8 @@ def corner_modes(run_dir: Path) -> dict:
     out = {}
     for mode in ("none", "midpoint", "intersection"):
         cfg = load_config(None, [f"fusion.corners.mode={mode}"])
-        res = fuse("proposed", run.segments.segments, run.segments.scan, cfg.fusion, rms=run.segments.extra.get("rms"))
+        res = fuse("proposed", run.segments.segments, run.segments.scan, cfg.fusion, rms=run.segments.extra.get("rms"),
+                   max_gap=run.segments.extra.get("max_gap"))
         m = truth_metrics(res.segments, run.truth)
         out[mode] = {"corner_err_cm": m["corner_err_cm"], "vertex_error_sum_m": m["vertex_error_sum_m"],
                      "precision": m["precision"], "recall": m["recall"]}

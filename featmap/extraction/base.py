@@ -26,6 +26,9 @@ class ScanSegments:
         support_points: (P, 2) the scan's structure points in the sensor's x-y plane (every return of a
             2D laser; the wall candidates of a 3D LiDAR), for the truth-free map metric; None when the
             extractor does not provide them.
+        max_gap: (K,) the longest stretch of each segment's line between two consecutive returns along it
+            (metres): how long a gap in the wall the view could have missed (a far wall seen at grazing
+            incidence is sampled in columns metres apart). None when the extractor does not measure it.
     """
 
     segments: np.ndarray
@@ -35,6 +38,7 @@ class ScanSegments:
     z_min: np.ndarray | None = None
     z_max: np.ndarray | None = None
     support_points: np.ndarray | None = None
+    max_gap: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.segments)
@@ -121,13 +125,18 @@ def segments_to_world(scan_segments: ScanSegments, T_world_sensor: np.ndarray) -
 
 
 def world_fields(scan_segments: ScanSegments, T_world_sensor: np.ndarray) -> dict[str, np.ndarray]:
-    """Per-segment columns that go with the world-frame segments: point counts, rms and (3D) heights
-    shifted by the sensor's height in the world frame. Each (K,)."""
+    """Per-segment columns that go with the world-frame segments: point counts, rms, (3D) heights
+    shifted by the sensor's height in the world frame, and ``max_gap`` when the extractor measures it.
+    Each (K,)."""
     if scan_segments.dimension == 2:
-        return {"n_points": scan_segments.n_points, "rms": scan_segments.rms}
-    z_off = T_world_sensor[2, 3]
-    return {"n_points": scan_segments.n_points, "z_min": scan_segments.z_min + z_off,
-            "z_max": scan_segments.z_max + z_off, "rms": scan_segments.rms}
+        out = {"n_points": scan_segments.n_points, "rms": scan_segments.rms}
+    else:
+        z_off = T_world_sensor[2, 3]
+        out = {"n_points": scan_segments.n_points, "z_min": scan_segments.z_min + z_off,
+               "z_max": scan_segments.z_max + z_off, "rms": scan_segments.rms}
+    if scan_segments.max_gap is not None:
+        out["max_gap"] = scan_segments.max_gap
+    return out
 
 
 class StageClock:

@@ -1418,7 +1418,7 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
     sel = sel[np.lexsort((m.a[sel, 1], m.a[sel, 0]))]
     return ScanSegments(segments=np.column_stack([m.a[sel], m.b[sel]]), z_mean=m.z_mean[sel],
                         n_points=m.n_points[sel].astype(np.int64), z_min=m.z_min[sel], z_max=m.z_max[sel],
-                        rms=m.rms[sel])
+                        rms=m.rms[sel], max_gap=m.max_gap[sel])
 
 
 # --- the extractor --------------------------------------------------------------------------------------
@@ -1488,4 +1488,4 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
 
 
 EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,
-                      extract=extract_vertical_structure, version=5)
+                      extract=extract_vertical_structure, version=6)

@@ -112,3 +112,66 @@ def split_at_gaps(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray,
     new_labels = np.full(len(labels), -1, dtype=np.int64)
     new_labels[idx] = rank[piece]
     return pieces, new_labels, group
+
+
+def split_at_unresolved_gaps(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray, max_gap: np.ndarray,
+                             gap_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cut fused features across gaps that the views able to see them show and the others cannot hide.
+
+    A member whose returns lie less than ``gap_m`` apart along it (``max_gap``, the extraction's column)
+    *resolves* gaps of ``gap_m``: where such members cover a feature's line on both sides of a stretch
+    longer than ``gap_m`` and none of them covers the stretch, the wall has a gap there, unless a member
+    that spans the whole stretch samples it finely enough to show wall in it (its ``max_gap`` is shorter
+    than the stretch). A far wall seen at grazing incidence is sampled in columns of returns metres apart:
+    such a view covers the passage between two buildings in line without seeing it, and is no evidence
+    of wall there. The feature's ends are left as they are (nothing resolving shows where a wall ends
+    beyond the views that resolve it).
+
+    Args:
+        fused: (M, 4) fused features; segments: (N, 4) input segments; labels: (N,) their feature or -1;
+        max_gap: (N,) each segment's longest stretch between consecutive returns (metres, >= 0).
+        gap_m: the gap length resolved (> 0).
+    Returns:
+        (pieces (P, 4), new labels (N,) into the pieces, parent feature of each piece (P,)), pieces in the
+        order of their features, then along them; a member goes to the piece nearest its middle.
+    """
+    fused = np.asarray(fused, dtype=float).reshape(-1, 4)
+    labels = np.asarray(labels, dtype=np.int64)
+    idx, lo, hi = member_intervals(fused, segments, labels)
+    feature = labels[idx]
+    gap = np.asarray(max_gap, dtype=float)[idx]
+    length = segment_lengths(fused)
+    order = np.argsort(feature, kind="stable")
+    starts = np.searchsorted(feature[order], np.arange(len(fused) + 1))
+    pieces, parent = [], []
+    new_labels = np.full(len(labels), -1, dtype=np.int64)
+    for k in range(len(fused)):
+        mine = order[starts[k]:starts[k + 1]]
+        cuts = _unresolved_gaps(lo[mine], hi[mine], gap[mine], gap_m)
+        bounds = np.concatenate([[0.0], cuts.ravel(), [length[k]]]).reshape(-1, 2)
+        u = (fused[k, 2:] - fused[k, :2]) / length[k] if length[k] > 0 else np.zeros(2)
+        if len(mine):
+            middle = 0.5 * (lo[mine] + hi[mine])
+            inside = np.clip(middle[:, None], bounds[:, 0], bounds[:, 1])
+            new_labels[idx[mine]] = len(pieces) + np.argmin(np.abs(inside - middle[:, None]), axis=1)
+        for a, b in bounds:
+            pieces.append(np.r_[fused[k, :2] + a * u, fused[k, :2] + b * u])
+            parent.append(k)
+    return np.array(pieces, dtype=float).reshape(-1, 4), new_labels, np.array(parent, dtype=np.int64)
+
+
+def _unresolved_gaps(lo: np.ndarray, hi: np.ndarray, max_gap: np.ndarray, gap_m: float) -> np.ndarray:
+    """(G, 2) the stretches ``[start, end]`` of one feature's line to cut (see :func:`split_at_unresolved_gaps`);
+    ``lo``, ``hi``, ``max_gap`` (K,) are its members' intervals and sampling."""
+    resolving = max_gap < gap_m
+    if not resolving.any() or resolving.all():
+        return np.zeros((0, 2))
+    a, b = lo[resolving], hi[resolving]
+    o = np.argsort(a, kind="stable")
+    a, b = a[o], np.maximum.accumulate(b[o])
+    opens = np.flatnonzero(a[1:] > b[:-1] + gap_m)          # covered up to b[i], again from a[i + 1]
+    start, end = b[opens], a[opens + 1]
+    others_lo, others_hi, others_gap = lo[~resolving], hi[~resolving], max_gap[~resolving]
+    shown = ((others_lo[None, :] <= start[:, None]) & (others_hi[None, :] >= end[:, None])
+             & (others_gap[None, :] < (end - start)[:, None])).any(axis=1)
+    return np.column_stack([start[~shown], end[~shown]])

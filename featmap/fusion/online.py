@@ -14,7 +14,7 @@ each one.
 Why it is the offline map: the link forest's components and first-link scans do not depend on the grid
 (see :mod:`featmap.fusion.link_forest`), and the pairs whose criteria lie within rounding of a threshold
 are decided with numpy as offline. So ``fused()`` equals ``fuse("proposed", segments, scan, config,
-rms=rms)`` of the same segments (scans numbered in the order they were added) bit for bit, whenever both
+rms=rms, max_gap=max_gap)`` of the same segments (scans numbered in the order they were added) bit for bit, whenever both
 work in the same frame: the online fusion fixes its working origin (a whole-kilometre point,
 :func:`featmap.fusion.registry.working_origin`) from the first scan with segments, the offline one from
 all segments, and both are the frame's origin for a map within 500 m of it. Elsewhere the two differ
@@ -53,6 +53,7 @@ class OnlineFusion:
         self.origin: np.ndarray | None = None      # (2,) working origin, fixed by the first scan with segments
         self._scans: list[np.ndarray] = []          # per scan: (K, 4) segments as given
         self._rms: list[np.ndarray | None] = []
+        self._max_gap: list[np.ndarray | None] = []
         self._valid: list[np.ndarray] = []
         self._n = 0                                 # valid segments so far (the kernel's indices 0 .. n-1)
         self._cell_size: float | None = None        # the grid, fixed by the first valid segments
@@ -82,26 +83,34 @@ class OnlineFusion:
         rms = None if any(r is None for r in self._rms) else np.concatenate(self._rms)
         return np.concatenate(self._scans), scan, rms
 
+    def max_gap(self) -> np.ndarray | None:
+        """(N,) every segment's ``max_gap`` column so far, or None when a scan came without."""
+        if not self._max_gap or any(g is None for g in self._max_gap):
+            return None
+        return np.concatenate(self._max_gap)
+
     # --- one scan in -----------------------------------------------------------------------------------
 
-    def add_scan(self, segments, rms=None) -> int:
+    def add_scan(self, segments, rms=None, max_gap=None) -> int:
         """Link one scan's segments to those of the scans before it; returns the scan's index.
 
         Args:
             segments: (K, 4) world-frame segments ``x1, y1, x2, y2`` (metres); K may be 0.
             rms: (K,) each segment's fit rms from the extraction (metres), or None (then no segment
                 counts as a clean view in :meth:`fused`, as offline without an rms column).
+            max_gap: (K,) each segment's longest stretch between consecutive returns (metres), or None
+                (then ``fusion.refine.resolved_gap_m`` cuts nothing in :meth:`fused`, as offline).
         Raises:
-            ValueError: a NaN or infinite coordinate, ``rms`` of another length, or a segment farther than
-                ``MAX_MAP_SPAN_M`` from the first ones (nothing of the scan is kept then).
+            ValueError: a NaN or infinite coordinate, ``rms`` or ``max_gap`` of another length, or a segment
+                farther than ``MAX_MAP_SPAN_M`` from the first ones (nothing of the scan is kept then).
         """
         segments = as_segments(segments).astype(np.float64, copy=True)
         if not np.isfinite(segments).all():
             raise ValueError("segments contain NaN or inf")
-        if rms is not None:
-            rms = np.asarray(rms, dtype=float).reshape(-1)
-            if len(rms) != len(segments):
-                raise ValueError(f"rms has {len(rms)} entries for {len(segments)} segments")
+        rms, max_gap = (None if c is None else np.asarray(c, dtype=float).reshape(-1) for c in (rms, max_gap))
+        for name, column in (("rms", rms), ("max_gap", max_gap)):
+            if column is not None and len(column) != len(segments):
+                raise ValueError(f"{name} has {len(column)} entries for {len(segments)} segments")
         if self.origin is None and len(segments):
             self.origin = working_origin(segments)
         shift = np.tile(self.origin, 2) if self.origin is not None else np.zeros(4)
@@ -118,6 +127,7 @@ class OnlineFusion:
             keys = cell_xy[:, 0] * self._ny + cell_xy[:, 1]
         self._scans.append(segments)
         self._rms.append(rms)
+        self._max_gap.append(max_gap)
         self._valid.append(valid)
         if keys is not None:
             self._link(new, keys)
@@ -217,7 +227,7 @@ class OnlineFusion:
 
     def fused(self) -> FusionResult:
         """The fused map of every scan so far (what ``fuse("proposed", *self.segments()[:2], config,
-        rms=...)`` gives; see the module docstring). Labels index the segments of :meth:`segments`."""
+        rms=..., max_gap=...)`` gives; see the module docstring). Labels index the segments of :meth:`segments`."""
         segments, scan, rms = self.segments()
         origin = self.origin if self.origin is not None else np.zeros(2)
         valid = np.concatenate(self._valid) if self._valid else np.zeros(0, bool)
@@ -225,4 +235,4 @@ class OnlineFusion:
         clean = rule.clean_views(segments, rms)
         i, j = self.links()
         result = fuse_links(segments - np.tile(origin, 2), scan, valid, i, j, self.section, clean)
-        return finish_fusion(result, segments, scan, origin, self.config, rule, clean)
+        return finish_fusion(result, segments, scan, origin, self.config, rule, clean, self.max_gap())

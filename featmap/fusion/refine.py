@@ -19,7 +19,9 @@ parallel duplicates. :func:`refine` repairs them from the member segments alone,
    line, or the lighter within ``kept_heavier_ratio * max_offset_m`` of the heavier's (a short
    duplicate beside a long wall, slightly askew).
 3. **gaps**: every feature is cut where its members leave more than ``split_gap_m`` of its line
-   unobserved (doorways, passages between walls in line); see :mod:`featmap.fusion.gaps`.
+   unobserved (doorways, passages between walls in line), and, with the segments' ``max_gap`` column,
+   where the members that resolve gaps of ``resolved_gap_m`` leave one that the others are too coarsely
+   sampled to close; see :mod:`featmap.fusion.gaps`.
 
 A cluster that changes is refitted as the length-weighted total-least-squares line through its
 members' endpoints, cut at their extreme projections (the proposed method's fit); unchanged clusters
@@ -36,7 +38,7 @@ from scipy.spatial import cKDTree
 
 from featmap.config import Section
 from featmap.fusion.base import FusionResult, SupportRule, fit_clusters, relabel_by_first_appearance, validate_input
-from featmap.fusion.gaps import observed_length, split_at_gaps
+from featmap.fusion.gaps import observed_length, split_at_gaps, split_at_unresolved_gaps
 from featmap.geometry import segment_lengths
 
 
@@ -49,6 +51,7 @@ class RefineConfig(Section):
     absorb_dropped: bool = Field(True, description="segments dropped by a support filter join a feature they lie on")
     kept_heavier_ratio: float = Field(0.5, ge=0, le=1, description="two kept features also merge when the lighter lies within this fraction of max_offset_m of the heavier's line (0 = only when each lies near the other's)")
     split_gap_m: float = Field(0.0, ge=0, description="cut features where no member covers this much of their line, e.g. doorways (0 = off)")
+    resolved_gap_m: float = Field(0.0, ge=0, description="cut features where the members whose returns lie less than this apart (the segments' max_gap column) leave this much of their line between them and no member that spans it is sampled finely enough to show it (a far view at grazing incidence covers the passage between two buildings in line without seeing it; 0 = off, the default: not adopted, see docs/results.md)")
 
 
 def _moments(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -359,27 +362,32 @@ def join_bends(fused: np.ndarray, first: np.ndarray, second: np.ndarray) -> tupl
 
 
 def refine(result: FusionResult, segments, scan, config: RefineConfig,
-           rule: SupportRule = SupportRule(), clean: np.ndarray | None = None) -> FusionResult:
+           rule: SupportRule = SupportRule(), clean: np.ndarray | None = None,
+           max_gap: np.ndarray | None = None) -> FusionResult:
     """Apply the enabled refinement steps to one method's result (see the module docstring).
 
     Args:
         result: the method's FusionResult (its labels tie input segments to features).
         segments: (N, 4) the method's world-frame input; scan: (N,) scan of each segment.
-        config: ``max_offset_m = 0`` turns split and merge off; ``split_gap_m = 0`` the gap split.
+        config: ``max_offset_m = 0`` turns split and merge off; ``split_gap_m = 0`` the gap split;
+            ``resolved_gap_m = 0`` (or ``max_gap`` None) the split at unresolved gaps.
         rule: the method's support rule, applied again to the refined features (a piece split off a
             cluster must earn its place like any cluster); clean: (N,) the segments that are clean views
             for that rule (``SupportRule.clean_views``), or None.
+        max_gap: (N,) each segment's longest stretch between consecutive returns (metres; the
+            extraction's ``max_gap`` column), or None.
     Returns:
         A FusionResult whose segments, support, labels and segments_before_corners describe the
         refined features (corner optimisation still to come); ``extras["refine"]`` counts the changes.
     """
-    if config.max_offset_m <= 0 and config.split_gap_m <= 0:
+    unresolved = config.resolved_gap_m > 0 and max_gap is not None
+    if config.max_offset_m <= 0 and config.split_gap_m <= 0 and not unresolved:
         return result
     segments, scan, valid = validate_input(segments, scan)
     weights = segment_lengths(segments)
     labels = result.labels.copy()
     fused = result.segments_before_corners
-    stats = {"split": 0, "merged": 0, "absorbed": 0, "gap_pieces": 0, "bends_joined": 0}
+    stats = {"split": 0, "merged": 0, "absorbed": 0, "gap_pieces": 0, "unresolved_gap_pieces": 0, "bends_joined": 0}
     bends = np.zeros((0, 2), np.int64)
 
     if config.max_offset_m > 0 and len(fused):
@@ -412,6 +420,11 @@ def refine(result: FusionResult, segments, scan, config: RefineConfig,
         before = len(fused)
         fused, labels, _ = split_at_gaps(fused, segments, labels, config.split_gap_m)
         stats["gap_pieces"] = int(len(fused) - before)
+
+    if unresolved and len(fused):
+        before = len(fused)
+        fused, labels, _ = split_at_unresolved_gaps(fused, segments, labels, max_gap, config.resolved_gap_m)
+        stats["unresolved_gap_pieces"] = int(len(fused) - before)
 
     if len(bends) and len(fused):
         fused, stats["bends_joined"] = join_bends(fused, labels[bends[:, 0]], labels[bends[:, 1]])

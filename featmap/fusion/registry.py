@@ -83,7 +83,7 @@ def prepare_method(name: str) -> None:
 
 def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig(),  # type: ignore[valid-type]
          progress: Callable[[int, int], None] | None = None,
-         rms: np.ndarray | None = None) -> FusionResult:
+         rms: np.ndarray | None = None, max_gap: np.ndarray | None = None) -> FusionResult:
     """Run method ``name`` with its section of ``config`` (the ``fusion:`` section), then the shared
     refinement (``fusion.refine``: consistent clusters, gap splitting) and corner optimisation.
 
@@ -93,6 +93,8 @@ def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig(),  # ty
         progress: called as ``progress(done, total)`` now and then by long fusions (the method's own units).
         rms: (N,) each segment's fit rms from the extraction (metres; the ``rms`` column of segments.csv),
             or None; a support rule with a clean-view clause needs it (without it no view is clean).
+        max_gap: (N,) each segment's longest stretch between consecutive returns (metres; the ``max_gap``
+            column), or None; ``fusion.refine.resolved_gap_m`` needs it (without it that split is off).
     """
     method = get_method(name)
     segments = as_segments(segments)
@@ -106,17 +108,19 @@ def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig(),  # ty
         rule = method.support_rule(section)
         clean = rule.clean_views(segments, rms)
         result = method.fuse(segments - shift, scan, section, progress=progress, clean=clean)
-    return finish_fusion(result, segments, scan, origin, config, rule, clean)
+    return finish_fusion(result, segments, scan, origin, config, rule, clean, max_gap)
 
 
 def finish_fusion(result: FusionResult, segments: np.ndarray, scan, origin: np.ndarray,
                   config: FusionConfig = FusionConfig(),  # type: ignore[valid-type]
-                  rule: SupportRule = SupportRule(), clean: np.ndarray | None = None) -> FusionResult:
+                  rule: SupportRule = SupportRule(), clean: np.ndarray | None = None,
+                  max_gap: np.ndarray | None = None) -> FusionResult:
     """What runs after every method: the shared refinement and corner optimisation, then back from the
     working frame (``origin`` (2,) subtracted, see :func:`working_origin`) to the frame of ``segments``
-    ((N, 4), the method's input before the shift; ``result`` was fused from ``segments - origin``)."""
+    ((N, 4), the method's input before the shift; ``result`` was fused from ``segments - origin``);
+    ``max_gap`` (N,) or None as for :func:`fuse`."""
     shift = np.tile(origin, 2)
-    result = refine(result, segments - shift, scan, config.refine, rule, clean)
+    result = refine(result, segments - shift, scan, config.refine, rule, clean, max_gap)
     before = result.segments_before_corners
     after = optimise_corners(before, config.corners)
     if not origin.any():

@@ -1,6 +1,7 @@
 """``segments.csv`` and ``fused_<method>.csv``: the CSV files of the output contract.
 
-``segments.csv``: header ``scan,x1,y1,x2,y2`` (+ optional ``n_points,z_min,z_max,rms``), world frame, metres.
+``segments.csv``: header ``scan,x1,y1,x2,y2`` (+ optional ``n_points,z_min,z_max,rms,max_gap``), world frame,
+metres.
 ``fused_<method>.csv``: header ``x1,y1,x2,y2,support`` (+ ``length_m``; a batch's merged map adds ``n_drives``
 and ``drives``, the names of the drives that saw each feature joined by ``;``), world frame, metres.
 Readers check every line and raise a one-line :class:`InputFileError` naming the file and line.
@@ -33,7 +34,8 @@ class SegmentTable:
     Attributes:
         scan: (N,) scan index of each segment.
         segments: (N, 4) ``x1, y1, x2, y2`` in metres.
-        extra: optional per-segment columns, each (N,) (e.g. ``n_points``, ``z_min``, ``z_max``, ``rms``).
+        extra: optional per-segment columns, each (N,) (e.g. ``n_points``, ``z_min``, ``z_max``, ``rms``,
+            ``max_gap``).
         skipped_zero_length: rows skipped on reading because both endpoints coincide.
         skipped_duplicates: rows skipped on reading because they repeat an earlier row's scan and endpoints
             (they would count twice in a feature's support).
@@ -179,7 +181,7 @@ def read_segments_csv(path: str | Path) -> SegmentTable:
     """Read a ``segments.csv``; zero-length rows are skipped and counted (``skipped_zero_length``), and so
     are rows repeating an earlier row's scan and endpoints (``skipped_duplicates``)."""
     path = Path(path)
-    table = _read_numeric_csv(path, SEGMENT_COLUMNS, integer_columns=("scan",), non_negative=("rms",))
+    table = _read_numeric_csv(path, SEGMENT_COLUMNS, integer_columns=("scan",), non_negative=("rms", "max_gap"))
     col = {h: table.data[:, k] for k, h in enumerate(table.header)}
     scan = table.integers["scan"]
     segments = np.stack([col[c] for c in ("x1", "y1", "x2", "y2")], axis=1)

@@ -69,9 +69,12 @@ class Extraction:
             extras.append(world_fields(scan_segments, T))
         if not segs:
             return SegmentTable(scan=np.zeros(0, np.int64), segments=np.zeros((0, 4)))
-        names = list(extras[0])
+        # A scan without segments may lack a column its extractor measures on non-empty scans (max_gap).
+        names = list(next((e for e, s in zip(extras, segs) if len(s)), extras[0]))
+        empty = np.zeros(0)
         return SegmentTable(scan=np.concatenate(scans), segments=np.concatenate(segs),
-                            extra={k: np.concatenate([e[k] for e in extras]).astype(float) for k in names})
+                            extra={k: np.concatenate([e.get(k, empty) if len(s) == 0 else e[k]
+                                                      for e, s in zip(extras, segs)]).astype(float) for k in names})
 
 
     def world_points(self, poses: np.ndarray | None = None) -> np.ndarray | None:

@@ -45,12 +45,16 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
         if off:
             reporter.warning(f"the segments have no rms column, so no segment counts as a clean view ({', '.join(off)} "
                              "has nothing to compare): small clusters are kept by count and length only")
+    max_gap = table.extra.get("max_gap")
+    if max_gap is None and len(table) and config.refine.resolved_gap_m > 0:
+        reporter.warning("the segments have no max_gap column (their extractor does not measure it), so "
+                         "fusion.refine.resolved_gap_m cuts nothing")
     runs = []
     if len(table) < PROGRESS_MIN_SEGMENTS:
         with reporter.progress("fusing", len(methods)) as advance:
             for name in methods:
                 start = time.perf_counter()
-                result = fuse(name, table.segments, table.scan, config, rms=rms)
+                result = fuse(name, table.segments, table.scan, config, rms=rms, max_gap=max_gap)
                 runs.append(MethodRun(name, result, time.perf_counter() - start))
                 advance(1)
     else:
@@ -64,7 +68,7 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
                     shown[0] = percent
 
                 start = time.perf_counter()
-                result = fuse(name, table.segments, table.scan, config, progress, rms=rms)
+                result = fuse(name, table.segments, table.scan, config, progress, rms=rms, max_gap=max_gap)
                 runs.append(MethodRun(name, result, time.perf_counter() - start))
     for run in runs:
         if len(run.result) == 0 and len(table) > 0:

@@ -145,7 +145,8 @@ def map_online(source: ScanSource, config: FeatmapConfig, every: int, reporter: 
             segments, T = waiting.pop(k)
             if refiner is not None:
                 T = refiner.decided_pose(k)
-            online.add_scan(segments_to_world(segments, T), world_fields(segments, T)["rms"])
+            columns = world_fields(segments, T)
+            online.add_scan(segments_to_world(segments, T), columns["rms"], columns.get("max_gap"))
 
     stamps, poses, rows = [], [], []
     result = online.fused()

@@ -329,7 +329,8 @@ def make_figures(run: FigureInputs, out: str | Path) -> list[Path]:
     call's figures whole, never some of each.
     """
     out = Path(out)
-    results = {name: fuse(name, run.segments.segments, run.segments.scan, run.fusion, rms=run.segments.extra.get("rms"))
+    results = {name: fuse(name, run.segments.segments, run.segments.scan, run.fusion,
+                          rms=run.segments.extra.get("rms"), max_gap=run.segments.extra.get("max_gap"))
                for name in run.methods}
     centres = local_map_centres(run, results)
     with atomic_file_set(out, FIGURE_FILES) as stage:

@@ -55,6 +55,7 @@ def test_facade_at_20_m_seen_only_to_2_5_m_is_one_segment_within_5_cm():
     assert result.rms[0] == pytest.approx(0.02, abs=0.01)
     assert result.z_min[0] < -1.2 and result.z_max[0] == pytest.approx(20 * np.tan(np.deg2rad(2.0)), abs=0.1)
     assert result.n_points[0] > 1000
+    assert 0 < result.max_gap[0] < 0.2               # 0.17 deg steps at 20-22 m: returns ~6 cm apart
 
 
 def test_fences_cars_vans_and_trees_are_not_walls():
@@ -358,6 +359,8 @@ def test_a_far_wall_seen_at_grazing_incidence_as_single_columns_is_one_wall():
     on_wall = [s for s in result.segments if on_line(s, [11.2, -64], [11.2, -83], 0.05)]
     assert len(on_wall) == 1
     assert min(on_wall[0][1], on_wall[0][3]) < -82.5 and max(on_wall[0][1], on_wall[0][3]) > -65.5
+    gap = result.max_gap[[i for i, s in enumerate(result.segments) if on_line(s, [11.2, -64], [11.2, -83], 0.05)]]
+    assert 2.5 < gap[0] < 4.0                        # its columns lie 4 m apart (less the streaks' length)
 
 
 def test_walls_joined_from_single_columns_do_not_set_the_scans_typical_spread():

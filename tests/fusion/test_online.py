@@ -101,7 +101,23 @@ def test_bad_input_is_refused_before_anything_is_kept():
         online.add_scan([[0.0, 0.0, np.nan, 1.0]])
     with pytest.raises(ValueError, match="rms has 2 entries for 1 segments"):
         online.add_scan([[0.0, 0.0, 1.0, 1.0]], rms=[0.01, 0.02])
+    with pytest.raises(ValueError, match="max_gap has 0 entries for 1 segments"):
+        online.add_scan([[0.0, 0.0, 1.0, 1.0]], max_gap=[])
     assert online.n_scans == 0 and online.n_segments == 0
+
+
+def test_the_split_at_unresolved_gaps_is_the_offline_one():
+    from tests.fusion.test_refine import _buildings_in_line
+
+    segments, scan, max_gap = _buildings_in_line()
+    config = FusionConfig.model_validate({"refine": {"resolved_gap_m": 3.0}})
+    online = OnlineFusion(config)
+    for s in range(int(scan.max()) + 1):
+        online.add_scan(segments[scan == s], max_gap=max_gap[scan == s])
+    offline = fuse("proposed", *online.segments()[:2], config, max_gap=online.max_gap())
+    result = online.fused()
+    assert len(result.segments) == 2 and np.array_equal(result.segments, offline.segments)
+    assert np.array_equal(result.labels, offline.labels)
 
 
 def test_a_pair_within_rounding_of_a_threshold_is_decided_as_offline():

@@ -6,7 +6,7 @@ import pytest
 from featmap.evaluation.map_metric import sample_segments, truth_free_metrics
 from featmap.fusion import FusionConfig, fuse
 from featmap.fusion.base import FusionResult, fit_clusters
-from featmap.fusion.gaps import interval_union, observed_length, split_at_gaps
+from featmap.fusion.gaps import interval_union, observed_length, split_at_gaps, split_at_unresolved_gaps
 from featmap.fusion.refine import RefineConfig, refine
 from featmap.geometry import point_segment_distance, segment_lengths
 from featmap.simulation.segments import observe_walls
@@ -105,6 +105,57 @@ def test_doorway_splits_the_fused_line():
     for name in ("proposed", "density"):
         result = fuse(name, segs, np.arange(len(segs)) % 12, _config(min_support=2))
         assert len(result.segments) == 2, name
+
+
+def _buildings_in_line(coarse_gap_m: float = 9.0):
+    """Two facades in line on y = 0 ([0, 20] and [26, 50] m, a 6 m passage between) seen head-on in 10
+    scans each (returns 0.2 m apart), and 6 far views at grazing incidence that span -4 .. 45 m with
+    columns of returns ``coarse_gap_m`` apart: (segments (N, 4), scan (N,), max_gap (N,))."""
+    rng = np.random.default_rng(5)
+    walls = np.array([[0.0, 0.0, 20.0, 0.0], [26.0, 0.0, 50.0, 0.0]])
+    near, near_scan = observe_walls(walls, 10, 0.01, rng, min_fraction=0.9, first_scan=np.array([0, 10]))
+    far = np.column_stack([rng.uniform(-4.2, -3.8, 6), rng.normal(0, 0.02, 6), rng.uniform(44.8, 45.2, 6),
+                           rng.normal(0, 0.02, 6)])
+    segs = np.vstack([near, far])
+    scan = np.r_[near_scan, 20 + np.arange(6)]
+    max_gap = np.r_[np.full(len(near), 0.2), np.full(6, coarse_gap_m)]
+    return segs, scan, max_gap
+
+
+def test_a_passage_that_only_coarse_views_cover_is_cut_there_and_nowhere_else():
+    segs, scan, max_gap = _buildings_in_line()
+    labels = np.zeros(len(segs), np.int64)
+    fused = fit_clusters(segs, labels, 1)
+    pieces, new_labels, parent = split_at_unresolved_gaps(fused, segs, labels, max_gap, 3.0)
+    assert len(pieces) == 2 and parent.tolist() == [0, 0]
+    xs = np.sort(np.sort(pieces[:, [0, 2]], axis=1), axis=0)
+    near_ends = np.sort(segs[:20, [0, 2]], axis=1)
+    assert xs[0, 1] == pytest.approx(near_ends[:10, 1].max(), abs=1e-6)     # cut where the facades' views end ...
+    assert xs[1, 0] == pytest.approx(near_ends[10:, 0].min(), abs=1e-6)     # ... and start again
+    assert xs[0, 0] < -3.7 and xs[1, 1] > 49.5                             # the ends stay as the views drew them
+    assert set(new_labels) == {0, 1}
+    # The views that resolve 3 m gaps leave none: nothing to cut.
+    assert len(split_at_unresolved_gaps(fused, segs, labels, max_gap, 7.0)[0]) == 1
+    # One view spanning the passage with returns 4 m apart (closer than the passage is long) shows wall in it.
+    shown = max_gap.copy()
+    shown[-1] = 4.0
+    assert len(split_at_unresolved_gaps(fused, segs, labels, shown, 3.0)[0]) == 1
+    # Every member resolving, or none: nothing to weigh, nothing cut.
+    assert len(split_at_unresolved_gaps(fused, segs, labels, np.full(len(segs), 0.2), 3.0)[0]) == 1
+    assert len(split_at_unresolved_gaps(fused, segs, labels, np.full(len(segs), 9.0), 3.0)[0]) == 1
+
+
+def test_resolved_gap_split_through_the_registry_needs_the_max_gap_column():
+    segs, scan, max_gap = _buildings_in_line()
+    on = FusionConfig.model_validate({"refine": {"resolved_gap_m": 3.0}, "corners": {"mode": "none"}})
+    off = FusionConfig.model_validate({"corners": {"mode": "none"}})
+    bridged = fuse("proposed", segs, scan, off, max_gap=max_gap)
+    assert len(bridged.segments) == 1                                       # the far views join the facades
+    cut = fuse("proposed", segs, scan, on, max_gap=max_gap)
+    assert len(cut.segments) == 2 and cut.extras["refine"]["unresolved_gap_pieces"] == 1
+    ends = np.sort(np.sort(cut.segments[:, [0, 2]], axis=1), axis=0)
+    assert 19.5 < ends[0, 1] < 20.5 and 25.5 < ends[1, 0] < 26.5
+    assert np.array_equal(fuse("proposed", segs, scan, on).segments, bridged.segments)     # no column: off
 
 
 def test_views_of_one_wall_left_in_two_clusters_are_merged():

@@ -16,3 +16,18 @@ def test_world_points_carry_the_frame_of_the_scan_they_came_from(tmp_path):
     assert extraction.frames == [2, 5, 8, 11] and len(scans) == len(points)
     for frame, segments, pose in zip(extraction.frames, extraction.scans, extraction.poses):
         assert np.array_equal(points[scans == frame], segments.support_points_world(pose))
+
+
+def test_world_table_keeps_the_max_gap_column_when_the_first_scans_are_empty():
+    """An empty scan has no max_gap (``ScanSegments.empty``); the scans with segments still carry theirs."""
+    from featmap.extraction.base import ScanSegments
+    from featmap.pipeline.extract import Extraction
+
+    wall = ScanSegments(segments=np.array([[5.0, -2.0, 5.0, 2.0]]), n_points=np.array([400]), rms=np.array([0.02]),
+                        z_mean=np.array([0.5]), z_min=np.array([-1.5]), z_max=np.array([2.0]),
+                        max_gap=np.array([0.07]))
+    poses = np.repeat(np.eye(4)[None], 3, axis=0)
+    poses[:, 0, 3] = [0.0, 1.0, 2.0]
+    table = Extraction([0, 1, 2], [ScanSegments.empty(), wall, ScanSegments.empty()], poses, 3).world_table()
+    assert table.scan.tolist() == [1] and table.extra["max_gap"].tolist() == [0.07]
+    assert table.segments.tolist() == [[6.0, -2.0, 6.0, 2.0]]
