@@ -149,13 +149,14 @@ def split_at_unresolved_gaps(fused: np.ndarray, segments: np.ndarray, labels: np
         mine = order[starts[k]:starts[k + 1]]
         cuts = _unresolved_gaps(lo[mine], hi[mine], gap[mine], gap_m)
         bounds = np.concatenate([[0.0], cuts.ravel(), [length[k]]]).reshape(-1, 2)
-        u = (fused[k, 2:] - fused[k, :2]) / length[k] if length[k] > 0 else np.zeros(2)
         if len(mine):
             middle = 0.5 * (lo[mine] + hi[mine])
             inside = np.clip(middle[:, None], bounds[:, 0], bounds[:, 1])
             new_labels[idx[mine]] = len(pieces) + np.argmin(np.abs(inside - middle[:, None]), axis=1)
-        for a, b in bounds:
-            pieces.append(np.r_[fused[k, :2] + a * u, fused[k, :2] + b * u])
+        u = (fused[k, 2:] - fused[k, :2]) / length[k] if length[k] > 0 else np.zeros(2)
+        ends = np.vstack([fused[k, :2], fused[k, :2] + cuts.ravel()[:, None] * u, fused[k, 2:]])
+        for a, b in zip(ends[0::2], ends[1::2]):           # a feature's own ends stay exactly as they were
+            pieces.append(np.r_[a, b])
             parent.append(k)
     return np.array(pieces, dtype=float).reshape(-1, 4), new_labels, np.array(parent, dtype=np.int64)
 

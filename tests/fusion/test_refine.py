@@ -134,8 +134,9 @@ def test_a_passage_that_only_coarse_views_cover_is_cut_there_and_nowhere_else():
     assert xs[1, 0] == pytest.approx(near_ends[10:, 0].min(), abs=1e-6)     # ... and start again
     assert xs[0, 0] < -3.7 and xs[1, 1] > 49.5                             # the ends stay as the views drew them
     assert set(new_labels) == {0, 1}
-    # The views that resolve 3 m gaps leave none: nothing to cut.
-    assert len(split_at_unresolved_gaps(fused, segs, labels, max_gap, 7.0)[0]) == 1
+    assert np.array_equal(pieces[0, :2], fused[0, :2]) and np.array_equal(pieces[-1, 2:], fused[0, 2:])   # ends kept exactly
+    # The views that resolve 3 m gaps leave none: nothing to cut, the feature stays exactly as it was.
+    assert np.array_equal(split_at_unresolved_gaps(fused, segs, labels, max_gap, 7.0)[0], fused)
     # One view spanning the passage with returns 4 m apart (closer than the passage is long) shows wall in it.
     shown = max_gap.copy()
     shown[-1] = 4.0

@@ -128,7 +128,8 @@ def test_scans_waiting_for_their_correction_reach_the_map_when_the_last_scans_ar
     mapping = map_online(KittiRawDataset(root, drive, skip_bad_scans=True), cfg, every, skip_bad_scans=True)
     assert len(mapping.frames) == 39 and list(mapping.extraction.skipped) == [39]
     table = mapping.extraction.world_table(mapping.refinement.poses)
-    offline = fuse("proposed", table.segments, table.scan, cfg.fusion, rms=table.extra["rms"])
+    offline = fuse("proposed", table.segments, table.scan, cfg.fusion, rms=table.extra["rms"],
+                   max_gap=table.extra.get("max_gap"))
     assert len(offline) > 0 and np.array_equal(mapping.result.segments, offline.segments)
     assert mapping.features[-1] == len(offline)
 
