@@ -60,12 +60,12 @@ wall's points away. One pass, no randomness:
    a tree crown over a fence does not lift it, nor when street trees hide the top of the rest of the
    fence. A facade at 20 m is seen only up to ~2.5 m by an HDL-64 (upper beam +2 deg),
    but it stops the top beam; a 1.5 m car never does, nor does a 2 m van at 11 m.
-   Off by default (not adopted, ``docs/results.md``): a piece whose returns leave gaps (columns of a
-   far wall seen at grazing incidence, metres apart) must be straight in each column
-   (``sparse_curve_factor``) and its columns must lie on one line (``sparse_offset_factor``), which
-   lets ``link_grazing_deg`` reach 87 deg (with ``link_grazing_max_m``) without rows of trees or
-   parked cars seen that obliquely; and it must hide what is behind it (``sparse_max_through``, see
-   :func:`seen_through`: a row of trees or poles lined up like a wall lets most rays through).
+   A piece whose returns leave gaps (columns of a far wall seen at grazing incidence, metres apart)
+   must be straight in each column (``sparse_curve_factor``) and its columns must lie on one line
+   (``sparse_offset_factor``), which lets ``link_grazing_deg`` reach 87 deg (with
+   ``link_grazing_max_m``) without rows of trees or parked cars seen that obliquely; and it must hide
+   what is behind it (``sparse_max_through``, see :func:`seen_through`: a row of trees or poles lined
+   up like a wall lets most rays through). Adopted 2026-12-03 (``docs/results.md``).
    *Long pieces* (``solid_length_m``) are no tree crown: they may float (a wall seen over the house
    in front of it), may be seen over a narrow band when they stop the top beam (``solid_min_span_m``:
    a facade behind a hedge, or up a slope under the beam), and may have few returns
@@ -113,8 +113,8 @@ class VerticalStructureConfig(Section):
     link_azimuth_steps: float = Field(3.33, ge=0, description="... and so are cells seen within this many of the scan's azimuth steps (measured from its returns) ...")
     link_azimuth_deg: float = Field(0.6, gt=0, description="... (or within this azimuth when the step cannot be measured; 0 steps = always) ...")
     link_radial_m: float = Field(2.0, gt=0, description="... that are this close in range (far walls, walls seen at grazing incidence) ...")
-    link_grazing_deg: float = Field(85.0, ge=0, lt=90, description="... and so are two columns one azimuth step apart whose ranges differ as on a wall seen up to this far from head-on (far walls along the street; 0 = off) ...")
-    link_grazing_max_m: float = Field(0.0, ge=0, description="... when their ranges differ by at most this (two buildings in line far away, seen one azimuth step apart, are not one wall; 0 = any, the default) ...")
+    link_grazing_deg: float = Field(87.0, ge=0, lt=90, description="... and so are two columns one azimuth step apart whose ranges differ as on a wall seen up to this far from head-on (far walls along the street; 0 = off) ...")
+    link_grazing_max_m: float = Field(8.0, ge=0, description="... when their ranges differ by at most this (two buildings in line far away, seen one azimuth step apart, are not one wall; 0 = any) ...")
     link_column_m: float = Field(1.0, ge=0, description="... a column being a cell whose returns stand this high (a wall's; a tree crown's returns at several depths do not)")
     link_angle_deg: float = Field(10.0, gt=0, le=90, description="linked cells' line directions differ by at most this")
     line_tolerance_m: float = Field(0.08, gt=0, description="a linked cell lies this close to its neighbour's line")
@@ -134,10 +134,10 @@ class VerticalStructureConfig(Section):
     max_behind: float = Field(1.0, ge=0, description="... and at most this many returns per wall return lie up to 1 m behind it (a wall hides what is behind it; foliage does not)")
     max_incidence_deg: float = Field(88.0, ge=0, le=90, description="a wall is seen at most this far from head-on (returns along a ray are a round thing seen at several depths, not a surface seen edge-on)")
     min_azimuth_steps: float = Field(1.5, ge=0, description="a wall whose returns leave a gap longer than max_gap_m spans at least this many of the scan's azimuth steps as seen from the sensor (two columns of returns with nothing between, e.g. a far corner and a pole one step apart, fit any line)")
-    sparse_curve_factor: float = Field(0.0, ge=0, description="a wall whose returns leave gaps longer than max_gap_m (a far wall seen at grazing incidence: columns of returns metres apart) is straight in each column: its returns' positions along it within max_column_curve_m and within this many times the scan's typical wall spread (median) of a fit on height and lateral position per column (a tree crown's depth follows its round; 0 = off, the default: not adopted, see docs/results.md) ...")
-    sparse_offset_factor: float = Field(0.0, ge=0, description="... and its columns lie on one line: their mean offsets from it spread (rms) at most this many times the spread within the columns plus sparse_offset_floor_m (parked cars in a row are not coplanar; 0 = off, the default)")
+    sparse_curve_factor: float = Field(2.0, ge=0, description="a wall whose returns leave gaps longer than max_gap_m (a far wall seen at grazing incidence: columns of returns metres apart) is straight in each column: its returns' positions along it within max_column_curve_m and within this many times the scan's range noise (its long walls' spread over the cosine of their incidence, from those seen within 60 deg of head-on; not applied without 3 of them) of a fit on height and lateral position per column (a tree crown's depth follows its round; 0 = off) ...")
+    sparse_offset_factor: float = Field(3.0, ge=0, description="... and its columns lie on one line: their mean offsets from it spread (rms) at most this many times the spread within the columns plus sparse_offset_floor_m (parked cars in a row are not coplanar; 0 = off)")
     sparse_offset_floor_m: float = Field(0.01, ge=0, description="... (see sparse_offset_factor)")
-    sparse_max_through: float = Field(0.0, ge=0, le=1, description="... and it hides what is behind it: of the returns whose rays cross its line within its extent and height, at most this share lie beyond it (a row of trees or poles seen obliquely lets most rays through; 0 = off, the default: not adopted, see docs/results.md)")
+    sparse_max_through: float = Field(0.4, ge=0, le=1, description="... and it hides what is behind it: of the returns whose rays cross its line within its extent and height, at most this share lie beyond it (a row of trees or poles seen obliquely lets most rays through; 0 = off)")
     max_column_curve_m: float = Field(0.07, gt=0, description="a wall spanning fewer than min_azimuth_steps has its returns' positions along it within this (median) of a fit on their height, azimuth and product (one or two columns of returns cut a wall in straight lines; a tree crown seen from afar curves)")
     min_span_m: float = Field(0.8, ge=0, description="a wall's returns span at least this much in height ...")
     min_top_m: float = Field(1.5, ge=0, description="... and reach at least this high above the local ground, and it ...")

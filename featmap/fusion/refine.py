@@ -51,7 +51,7 @@ class RefineConfig(Section):
     absorb_dropped: bool = Field(True, description="segments dropped by a support filter join a feature they lie on")
     kept_heavier_ratio: float = Field(0.5, ge=0, le=1, description="two kept features also merge when the lighter lies within this fraction of max_offset_m of the heavier's line (0 = only when each lies near the other's)")
     split_gap_m: float = Field(0.0, ge=0, description="cut features where no member covers this much of their line, e.g. doorways (0 = off)")
-    resolved_gap_m: float = Field(0.0, ge=0, description="cut features where the members whose returns lie less than this apart (the segments' max_gap column) leave this much of their line between them and no member that spans it is sampled finely enough to show it (a far view at grazing incidence covers the passage between two buildings in line without seeing it; 0 = off, the default: not adopted, see docs/results.md)")
+    resolved_gap_m: float = Field(3.0, ge=0, description="cut features where the members whose returns lie less than this apart (the segments' max_gap column) leave this much of their line between them and no member that spans it is sampled finely enough to show it (a far view at grazing incidence covers the passage between two buildings in line without seeing it; 0 = off)")
 
 
 def _moments(points: np.ndarray, weights: np.ndarray) -> np.ndarray:

@@ -429,17 +429,18 @@ def test_a_scan_whose_structure_is_all_high_up_gives_its_wall():
     assert len(result) == 1 and on_line(result.segments[0], [30, -10], [30, 10], 0.05)
 
 
-# The candidate for walls seen 85-87 deg from head-on (off by default, not adopted: docs/results.md).
-GRAZING_87 = dict(link_grazing_deg=87.0, link_grazing_max_m=8.0, sparse_curve_factor=2.0, sparse_offset_factor=3.0,
-                  sparse_max_through=0.4)
+# Before walls seen 85-87 deg from head-on were linked (adopted 2026-12-03, docs/results.md): columns
+# linked up to 85 deg, without the tests that sparse pieces now pass.
+SPARSE_TESTS_OFF = dict(link_grazing_max_m=0.0, sparse_curve_factor=0.0, sparse_offset_factor=0.0, sparse_max_through=0.0)
 
 
 def test_linking_columns_up_to_87_deg_finds_a_side_along_the_street_but_not_a_row_of_trees_behind():
     """A building's side along the street, 45-57 m ahead and 3 m to the right, is seen 86-87 deg from
-    head-on (one column of returns per azimuth step, metres apart): the default links columns up to 85 deg
-    and misses it. Linking up to 87 deg finds it, and also draws a line through a row of street trees
-    120-150 m behind, whose crowns stand one azimuth step apart in line with the ray. Each column of a
-    wall is a straight line in height; a crown's curves with its round (sparse_curve_factor)."""
+    head-on (one column of returns per azimuth step, metres apart): linking columns up to 85 deg misses
+    it. Linking up to 87 deg finds it, and without more tests also draws a line through a row of street
+    trees 120-150 m behind, whose crowns stand one azimuth step apart in line with the ray. Each column of
+    a wall is a straight line in height; a crown's curves with its round (sparse_curve_factor): the
+    default finds the side and not the trees."""
     trees = [{"kind": "tree", "position": [-119.6 - 9.0 * k, -4.0 + 0.31 * k], "trunk_height": 2.4,
               "crown_radius": 2.5} for k in range(4)]
     scan = cast_scan(trees + [building(45, -13, 70, -3.0, 8.0)], sensor="vls128", noise=0.011, azimuth_step=0.235)
@@ -450,13 +451,13 @@ def test_linking_columns_up_to_87_deg_finds_a_side_along_the_street_but_not_a_ro
     def behind(result):
         return [s for s in result.segments if max(s[0], s[2]) < -100]
 
-    default = extract_vertical_structure(scan)
-    assert side(default) == [] and behind(default) == []
-    wide = extract_vertical_structure(scan, VerticalStructureConfig(link_grazing_deg=87.0))
+    narrow = extract_vertical_structure(scan, VerticalStructureConfig(link_grazing_deg=85.0, **SPARSE_TESTS_OFF))
+    assert side(narrow) == [] and behind(narrow) == []
+    wide = extract_vertical_structure(scan, VerticalStructureConfig(link_grazing_deg=87.0, **SPARSE_TESTS_OFF))
     assert len(side(wide)) == 1 and len(behind(wide)) == 1
-    candidate = extract_vertical_structure(scan, VerticalStructureConfig(**GRAZING_87))
-    assert behind(candidate) == []
-    assert len(side(candidate)) == 1 and abs(side(candidate)[0][2] - side(candidate)[0][0]) > 8.0
+    default = extract_vertical_structure(scan)
+    assert behind(default) == []
+    assert len(side(default)) == 1 and abs(side(default)[0][2] - side(default)[0][0]) > 8.0
 
 
 @pytest.mark.parametrize("setting, measures", [
@@ -469,23 +470,26 @@ def test_linking_columns_up_to_87_deg_finds_a_side_along_the_street_but_not_a_ro
     # wall hides what is behind it.
     ({"sparse_max_through": 0.4}, {"through": np.array([0.05, 0.6])}),
 ], ids=["columns_not_coplanar", "lets_rays_through"])
-def test_a_sparse_piece_failing_an_opt_in_test_is_no_wall(setting, measures):
+def test_a_sparse_piece_failing_a_test_for_sparse_pieces_is_no_wall(setting, measures):
     """Of two pieces with gaps (sparse), the first passes the test ``setting`` turns on and the second
-    does not; only sparse pieces are asked, and only when the test is on."""
+    does not; only sparse pieces are asked, and only when the test is on (it is by default)."""
     from featmap.extraction.vertical_structure import PieceMeasures, wall_segments
 
     one = np.ones(2)
     m = PieceMeasures(a=np.array([[40.0, 1.0], [40.0, -1.0]]), b=np.array([[50.0, 3.0], [50.0, -3.0]]),
                       count=100 * one, n_points=100 * one, z_mean=0 * one, z_min=-1 * one, z_max=2 * one,
                       rms=0.01 * one, core=one, behind=0 * one, max_gap=3.0 * one, column_curve=0 * one, **measures)
-    kept = wall_segments(m, VerticalStructureConfig(**setting), 0.2)
+    only = VerticalStructureConfig(**{**SPARSE_TESTS_OFF, **setting})
+    kept = wall_segments(m, only, 0.2)
     assert len(kept) == 1 and kept.segments[0][1] == pytest.approx(1.0)                    # the first one
-    assert len(wall_segments(m, VerticalStructureConfig(), 0.2)) == 2                       # off by default
+    assert len(wall_segments(m, VerticalStructureConfig(**SPARSE_TESTS_OFF), 0.2)) == 2     # test off
+    (name, value), = setting.items()
+    assert getattr(VerticalStructureConfig(), name) == value                                # on by default
     dense = PieceMeasures(**{**m.__dict__, "max_gap": 0.5 * one})                           # no gap: not sparse
-    assert len(wall_segments(dense, VerticalStructureConfig(**setting), 0.2)) == 2
+    assert len(wall_segments(dense, only, 0.2)) == 2
 
 
-def test_a_facade_seen_obliquely_behind_a_row_of_poles_is_kept_by_the_grazing_candidate():
+def test_a_facade_seen_obliquely_behind_a_row_of_poles_is_kept():
     """Poles in a row 6 m in front of a facade cut it into stretches with gaps, so its pieces are sparse,
     and every wall of the scan is seen 75-88 deg from head-on. A column's returns scatter along the wall by
     the range noise, its returns across the wall by that noise times the cosine of the incidence: the
@@ -497,8 +501,9 @@ def test_a_facade_seen_obliquely_behind_a_row_of_poles_is_kept_by_the_grazing_ca
     def facade(result):
         return [s for s in result.segments if on_line(s, [20, -9], [90, -9], 0.05)]
 
-    assert len(facade(extract_vertical_structure(scan))) >= 1
-    found = facade(extract_vertical_structure(scan, VerticalStructureConfig(**GRAZING_87)))
+    assert len(facade(extract_vertical_structure(scan, VerticalStructureConfig(link_grazing_deg=85.0,
+                                                                               **SPARSE_TESTS_OFF)))) >= 1
+    found = facade(extract_vertical_structure(scan))
     assert sum(abs(s[2] - s[0]) for s in found) > 50.0
 
 
@@ -510,7 +515,7 @@ def test_grazing_links_can_be_capped_in_range():
     step = 0.235
     az = np.deg2rad([10.0, 10.0 + step])
     points = np.column_stack([[150.0, 160.0] * np.cos(az), [150.0, 160.0] * np.sin(az)])
-    config = VerticalStructureConfig(link_grazing_deg=87.0, link_azimuth_deg=3.33 * step)
+    config = VerticalStructureConfig(link_grazing_deg=87.0, link_grazing_max_m=0.0, link_azimuth_deg=3.33 * step)
     columns = np.ones(2, bool)
     assert _grazing_pairs(points, columns, config).tolist() == [[0, 1]]
     assert len(_grazing_pairs(points, columns, config.model_copy(update={"link_grazing_max_m": 8.0}))) == 0

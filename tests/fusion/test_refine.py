@@ -149,7 +149,7 @@ def test_a_passage_that_only_coarse_views_cover_is_cut_there_and_nowhere_else():
 def test_resolved_gap_split_through_the_registry_needs_the_max_gap_column():
     segs, scan, max_gap = _buildings_in_line()
     on = FusionConfig.model_validate({"refine": {"resolved_gap_m": 3.0}, "corners": {"mode": "none"}})
-    off = FusionConfig.model_validate({"corners": {"mode": "none"}})
+    off = FusionConfig.model_validate({"refine": {"resolved_gap_m": 0.0}, "corners": {"mode": "none"}})
     bridged = fuse("proposed", segs, scan, off, max_gap=max_gap)
     assert len(bridged.segments) == 1                                       # the far views join the facades
     cut = fuse("proposed", segs, scan, on, max_gap=max_gap)
