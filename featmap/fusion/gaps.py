@@ -140,25 +140,35 @@ def split_at_unresolved_gaps(fused: np.ndarray, segments: np.ndarray, labels: np
     idx, lo, hi = member_intervals(fused, segments, labels)
     feature = labels[idx]
     gap = np.asarray(max_gap, dtype=float)[idx]
-    length = segment_lengths(fused)
+    n = len(fused)
+    resolving = gap < gap_m
+    mixed = (np.bincount(feature, resolving, n) > 0) & (np.bincount(feature, ~resolving, n) > 0)
     order = np.argsort(feature, kind="stable")
-    starts = np.searchsorted(feature[order], np.arange(len(fused) + 1))
-    pieces, parent = [], []
-    new_labels = np.full(len(labels), -1, dtype=np.int64)
-    for k in range(len(fused)):
+    starts = np.searchsorted(feature[order], np.arange(n + 1))
+    cuts_of = {}                              # only features with both kinds of member can be cut
+    for k in np.flatnonzero(mixed):
         mine = order[starts[k]:starts[k + 1]]
         cuts = _unresolved_gaps(lo[mine], hi[mine], gap[mine], gap_m)
+        if len(cuts):
+            cuts_of[int(k)] = (mine, cuts)
+    count = np.ones(n, dtype=np.int64)
+    for k, (_, cuts) in cuts_of.items():
+        count[k] += len(cuts)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
+    parent = np.repeat(np.arange(n, dtype=np.int64), count)
+    pieces = fused[parent].copy()
+    new_labels = np.full(len(labels), -1, dtype=np.int64)
+    new_labels[idx] = first[feature]
+    length = segment_lengths(fused)
+    for k, (mine, cuts) in cuts_of.items():
         bounds = np.concatenate([[0.0], cuts.ravel(), [length[k]]]).reshape(-1, 2)
-        if len(mine):
-            middle = 0.5 * (lo[mine] + hi[mine])
-            inside = np.clip(middle[:, None], bounds[:, 0], bounds[:, 1])
-            new_labels[idx[mine]] = len(pieces) + np.argmin(np.abs(inside - middle[:, None]), axis=1)
-        u = (fused[k, 2:] - fused[k, :2]) / length[k] if length[k] > 0 else np.zeros(2)
+        middle = 0.5 * (lo[mine] + hi[mine])
+        inside = np.clip(middle[:, None], bounds[:, 0], bounds[:, 1])
+        new_labels[idx[mine]] = first[k] + np.argmin(np.abs(inside - middle[:, None]), axis=1)
+        u = (fused[k, 2:] - fused[k, :2]) / length[k]
         ends = np.vstack([fused[k, :2], fused[k, :2] + cuts.ravel()[:, None] * u, fused[k, 2:]])
-        for a, b in zip(ends[0::2], ends[1::2]):           # a feature's own ends stay exactly as they were
-            pieces.append(np.r_[a, b])
-            parent.append(k)
-    return np.array(pieces, dtype=float).reshape(-1, 4), new_labels, np.array(parent, dtype=np.int64)
+        pieces[first[k]:first[k] + count[k]] = np.column_stack([ends[0::2], ends[1::2]])   # own ends kept exactly
+    return pieces, new_labels, parent
 
 
 def _unresolved_gaps(lo: np.ndarray, hi: np.ndarray, max_gap: np.ndarray, gap_m: float) -> np.ndarray:
