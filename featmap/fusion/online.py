@@ -80,14 +80,11 @@ class OnlineFusion:
         if not self._scans:
             return np.zeros((0, 4)), np.zeros(0, np.int64), None
         scan = np.repeat(np.arange(len(self._scans), dtype=np.int64), [len(s) for s in self._scans])
-        rms = None if any(r is None for r in self._rms) else np.concatenate(self._rms)
-        return np.concatenate(self._scans), scan, rms
+        return np.concatenate(self._scans), scan, _joined(self._rms)
 
     def max_gap(self) -> np.ndarray | None:
         """(N,) every segment's ``max_gap`` column so far, or None when a scan came without."""
-        if not self._max_gap or any(g is None for g in self._max_gap):
-            return None
-        return np.concatenate(self._max_gap)
+        return _joined(self._max_gap)
 
     # --- one scan in -----------------------------------------------------------------------------------
 
@@ -236,3 +233,8 @@ class OnlineFusion:
         i, j = self.links()
         result = fuse_links(segments - np.tile(origin, 2), scan, valid, i, j, self.section, clean)
         return finish_fusion(result, segments, scan, origin, self.config, rule, clean, self.max_gap())
+
+
+def _joined(parts: list[np.ndarray | None]) -> np.ndarray | None:
+    """One per-segment column of every scan so far, or None when there is none or a scan came without."""
+    return None if not parts or any(p is None for p in parts) else np.concatenate(parts)
