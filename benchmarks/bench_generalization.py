@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_generalization.py [--split tuning|heldout] [--seeds S ...]
         [--frames a:b:c] [--workers 2] [--set key=value ...] [--cache-dir DIR] [--no-cache] [--json FILE] [--docs]
+        [--losses K]
 
 Worlds come from :mod:`featmap.simulation.procedural` (house rows, apartment blocks, courtyards,
 side streets, far walls 50-100 m away, cars, fences, hedges, poles, trees, sloped streets with
@@ -32,7 +33,11 @@ Per world and overall it prints:
 - for each fusion method (default configuration, ``featmap.fusion.fuse``): the metrics of
   EVALUATION.md against that same truth (precision, recall, redundancy, offset, corner error);
 - extraction speed: scans/s of the whole extraction stage with ``--workers`` processes (reading
-  included), and the median milliseconds of the extraction call per scan.
+  included), and the median milliseconds of the extraction call per scan;
+- with ``--losses K`` (tuning and probe worlds only: held-out worlds are not looked into): where the
+  segment coverage is lost, i.e. the observed wall length no segment covers, by how the drive saw it at
+  best (every view >= 84 deg from head-on, every view > 80 m away, at most 2 scans, other), and the K
+  longest uncovered stretches with their views (``featmap.evaluation.observation_metrics.uncovered_stretches``).
 
 Extraction goes through the pipeline's own loop (:func:`featmap.pipeline.extract.extract_source`) with
 the configured extractor (``--set extraction.method_3d=NAME`` picks another registered one) and its
@@ -59,7 +64,8 @@ from rich.table import Table
 from featmap.datasets import KittiRawDataset
 from featmap.errors import FeatmapError
 from featmap.evaluation import load_simulator_truth, truth_metrics
-from featmap.evaluation.observation_metrics import match_observations, truth_from_observations, union_coverage
+from featmap.evaluation.observation_metrics import (FAR_VIEW_M, FEW_VIEWS, GRAZING_VIEW_DEG, LOSS_KINDS, UncoveredStretches, match_observations,
+                                                   truth_from_observations, uncovered_stretches, union_coverage)
 from featmap.fusion import fuse
 from featmap.io.segments_csv import SegmentTable
 from featmap.io.sim_truth import read_observations
@@ -136,11 +142,14 @@ class WorldResult:
     extract_ms: list
     points: list
     methods: dict
+    losses: UncoveredStretches | None = None
 
 
-def score_world(root: Path, frames: list[int], table: SegmentTable, config, methods: list[str]) -> dict:
+def score_world(root: Path, frames: list[int], table: SegmentTable, config, methods: list[str],
+                losses: bool = False) -> dict:
     """Observation recall, coverage and every method's fused metrics for one world's extracted segments
-    (``table``: world frame, with the extraction's per-segment columns)."""
+    (``table``: world frame, with the extraction's per-segment columns); with ``losses`` also the observed
+    wall stretches no segment covers (``"losses"``, :func:`uncovered_stretches`)."""
     segments, scan = table.segments, table.scan
     ds = KittiRawDataset(root, DRIVE)
     truth_dir = ds.location / "truth"
@@ -158,6 +167,8 @@ def score_world(root: Path, frames: list[int], table: SegmentTable, config, meth
            "few": (int(match.found[few].sum()), int(few.sum())), "far": (int(match.found[far].sum()), int(far.sum())),
            "covered_m": float(match.covered_m.sum()), "observed_m": float(match.sampled_m.sum()),
            "segment_coverage": union_coverage(segments, truth), "methods": {}}
+    if losses:
+        out["losses"] = uncovered_stretches(segments, truth, obs_c, poses)
     for name in methods:
         start = time.perf_counter()
         result = fuse(name, segments, scan, config.fusion, rms=table.extra.get("rms"), max_gap=table.extra.get("max_gap"))
@@ -236,6 +247,58 @@ def print_report(results: list[WorldResult], methods: list[str], split: str, wal
     console.print(table)
 
 
+def _loss_rows(results: list[WorldResult]):
+    """(seed, label, UncoveredStretches, kinds) of the worlds that were looked into."""
+    return [(r.seed, r.label, r.losses, r.losses.kind()) for r in results if r.losses is not None]
+
+
+def loss_tables(results: list[WorldResult], longest: int) -> list[Table]:
+    """Where the segment coverage is lost: uncovered observed length by how the drive saw it, and the
+    ``longest`` uncovered stretches (two tables)."""
+    rows = _loss_rows(results)
+    observed = sum(lost.observed_m for _, _, lost, _ in rows)
+    lost_m = sum(float(lost.length.sum()) for _, _, lost, _ in rows)
+    table = Table(title=f"observed wall length no segment covers, by its best view ({len(rows)} worlds; "
+                        f"grazing >= {GRAZING_VIEW_DEG:.0f} deg, far > {FAR_VIEW_M:.0f} m, few views <= {FEW_VIEWS} scans)")
+    for col in ("kind", "stretches", "metres", "share of the loss", "share of observed", "worlds (most metres)"):
+        table.add_column(col, justify="left" if col in ("kind", "worlds (most metres)") else "right")
+    for kind in LOSS_KINDS:
+        per_world = sorted(((float(lost.length[kinds == kind].sum()), seed) for seed, _, lost, kinds in rows), reverse=True)
+        metres = sum(m for m, _ in per_world)
+        table.add_row(kind, str(sum(int((kinds == kind).sum()) for _, _, _, kinds in rows)), f"{metres:.1f}",
+                      _num(metres / lost_m if lost_m else None, ".2f"), _num(metres / observed if observed else None, ".4f"),
+                      ", ".join(f"{seed} ({m:.1f})" for m, seed in per_world[:4] if m > 0))
+    table.add_row("[b]all[/b]", str(sum(len(lost) for _, _, lost, _ in rows)), f"{lost_m:.1f}", "1.00",
+                  _num(lost_m / observed if observed else None, ".4f"), f"of {observed:.0f} m observed")
+    by_kind = table
+    table = Table(title=f"the {longest} longest uncovered stretches")
+    for col in ("seed", "sensor, step, noise, dropout", "wall", "along m", "length m", "views", "nearest m",
+                "its angle deg", "best angle deg", "max hits", "kind"):
+        table.add_column(col, justify="left" if col in ("seed", "sensor, step, noise, dropout", "kind") else "right")
+    flat = [(float(lost.length[i]), seed, label, lost, kinds, i) for seed, label, lost, kinds in rows for i in range(len(lost))]
+    for length, seed, label, lost, kinds, i in sorted(flat, key=lambda t: -t[0])[:longest]:
+        table.add_row(str(seed), label, str(lost.wall[i]), f"{lost.start[i]:.1f}-{lost.end[i]:.1f}", f"{length:.1f}",
+                      str(lost.n_views[i]), _num(lost.nearest_m[i], ".1f"), _num(lost.nearest_incidence_deg[i], ".1f"),
+                      _num(lost.best_incidence_deg[i], ".1f"), str(lost.max_hits[i]), kinds[i])
+    return [by_kind, table]
+
+
+def print_losses(results: list[WorldResult], longest: int, console: Console) -> None:
+    """Print :func:`loss_tables`."""
+    for table in loss_tables(results, longest):
+        console.print(table)
+
+
+def _losses_json(lost: UncoveredStretches) -> dict:
+    kinds = lost.kind()
+    return {"observed_m": lost.observed_m, "metres_by_kind": {k: float(lost.length[kinds == k].sum()) for k in LOSS_KINDS},
+            "stretches": [{"wall": int(lost.wall[i]), "start": float(lost.start[i]), "end": float(lost.end[i]),
+                           "views": int(lost.n_views[i]), "nearest_m": float(lost.nearest_m[i]),
+                           "nearest_incidence_deg": float(lost.nearest_incidence_deg[i]),
+                           "best_incidence_deg": float(lost.best_incidence_deg[i]), "max_hits": int(lost.max_hits[i]),
+                           "kind": str(kinds[i])} for i in range(len(lost))]}
+
+
 def markdown_summary(results: list[WorldResult], methods: list[str], split: str, frames: str | None) -> str:
     """The summary the README and docs/results.md quote: per-scan extraction and the fused maps per method
     (mean over the worlds and the worst world)."""
@@ -289,6 +352,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--set", action="append", default=[], dest="overrides", help="config overrides")
     parser.add_argument("--sim-root", type=Path, default=Path("data/sim"), help="where drives are cached")
     parser.add_argument("--json", type=Path, help="also write every number to this JSON file")
+    parser.add_argument("--losses", type=int, default=0, metavar="K",
+                        help="also print where the segment coverage is lost: the uncovered observed wall length by "
+                             "how the drive saw it, and the K longest uncovered stretches (not with --split heldout)")
     parser.add_argument("--docs", action="store_true",
                         help="write the summary into docs/results.md (block generalization_<split>)")
     args = parser.parse_args(argv)
@@ -313,6 +379,9 @@ def _run(args, console: Console) -> int:
         if stray:
             raise FeatmapError(f"--seeds {stray}: held-out worlds; run them with --split heldout, only to report")
     else:
+        if args.losses:
+            raise FeatmapError("--losses: held-out worlds are run only to report, not looked into; "
+                               "look into tuning or probe worlds (--split tuning)")
         stray = [s for s in seeds if s not in allowed]
         if stray:
             raise FeatmapError(f"--seeds {stray}: not in the {args.split} split ({', '.join(map(str, allowed))})")
@@ -360,27 +429,38 @@ def _run(args, console: Console) -> int:
         acc = per_seed[seed]
         table = acc["table"]
         root = drive_root(args.sim_root, args.split, seed)
-        scored = score_world(root, frames_of[seed], table, config, methods)
+        scored = score_world(root, frames_of[seed], table, config, methods, losses=args.losses > 0)
         g = generate(seed).settings
         label = f"{g.sensor.name} {g.sensor.azimuth_step_deg:.2f}° {100 * g.noise_m:.1f}cm {100 * g.dropout:.0f}%"
         results.append(WorldResult(seed, label, len(frames_of[seed]), scored["n_obs"], scored["found"], scored["few"],
                                    scored["far"], scored["covered_m"], scored["observed_m"], scored["segment_coverage"],
-                                   len(table), acc["ms"], acc["points"], scored["methods"]))
+                                   len(table), acc["ms"], acc["points"], scored["methods"], scored.get("losses")))
     print_report(results, methods, args.split, wall_seconds, workers, console, extracted_now)
+    if args.losses:
+        print_losses(results, args.losses, console)
     if args.docs:
         sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-        from doc_blocks import replace_block
+        from doc_blocks import replace_block, rich_table_markdown
 
-        replace_block(Path(__file__).resolve().parents[1] / "docs" / "results.md", f"generalization_{args.split}",
-                      f"`.venv/bin/python benchmarks/bench_generalization.py --split {args.split} --docs`: "
-                      + markdown_summary(results, methods, args.split, args.frames))
+        results_md = Path(__file__).resolve().parents[1] / "docs" / "results.md"
+        command = f"`.venv/bin/python benchmarks/bench_generalization.py --split {args.split}"
+        if args.losses:
+            command += f" --losses {args.losses}"
+        replace_block(results_md, f"generalization_{args.split}",
+                      f"{command} --docs`: " + markdown_summary(results, methods, args.split, args.frames))
         console.print(f"wrote the {args.split} summary into docs/results.md")
+        if args.losses:
+            replace_block(results_md, "generalization_losses",
+                          f"{command} --docs` ({args.split} worlds, seeds {', '.join(map(str, seeds))}):\n\n"
+                          + "\n\n".join(rich_table_markdown(t) for t in loss_tables(results, args.losses)))
+            console.print("wrote where the segment coverage is lost into docs/results.md")
     if args.json:
         from featmap.io.atomic import atomic_write_text
 
         payload = {"split": args.split, "frames": args.frames, "extractor": extractor, "workers": workers,
                    "extraction_wall_seconds": wall_seconds,
-                   "worlds": [{**{k: v for k, v in r.__dict__.items() if k not in ("extract_ms", "points")},
+                   "worlds": [{**{k: v for k, v in r.__dict__.items() if k not in ("extract_ms", "points", "losses")},
+                               **({"losses": _losses_json(r.losses)} if r.losses is not None else {}),
                                "median_extract_ms": statistics.median(r.extract_ms) if r.extract_ms else None,
                                "median_points": statistics.median(r.points)} for r in results]}
         atomic_write_text(args.json, json.dumps(payload, indent=1, default=float))

@@ -17,6 +17,9 @@ Definitions (tolerances of EVALUATION.md: ``TOL = 0.30 m``, ``ANG = 10 deg``, sa
   the union of its counting observations' stretches over the selected scans (no range cap), and
   **segment coverage** is the share of that length lying on the union of all scans' segments:
   the recall an ideal fusion of these segments could reach (the ceiling for fusion).
+- Where that ceiling is lost: the **uncovered stretches** (:func:`uncovered_stretches`), each with the
+  views that observed it (how many scans, from how far, how far from head-on), sorted into kinds by
+  its best view (:meth:`UncoveredStretches.kind`).
 """
 
 from __future__ import annotations
@@ -173,17 +176,22 @@ def truth_from_observations(base: GroundTruth, obs: ScanObservations, counting: 
     return replace(base, observed=[merge_intervals(iv) for iv in per_wall], n_returns=hits)
 
 
-def union_coverage(segments: np.ndarray, truth: GroundTruth, chunk: int = 64) -> float | None:
-    """Share of the observable walls' observed length lying on at least one of ``segments`` (K, 4)."""
+def covered_samples(segments: np.ndarray, truth: GroundTruth, chunk: int = 64
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Samples along the observable walls' observed parts and whether one of ``segments`` (K, 4) covers each.
+
+    Returns:
+        (points (S, 2), wall index (S,), length weight (S,), covered (S,) bool), in the frame of ``truth``.
+    """
     points, wall, weight = observed_samples(truth, truth.observable())
+    covered = np.zeros(len(points), bool)
     if not len(points):
-        return None
+        return points, wall, weight, covered
     segments = np.asarray(segments, float).reshape(-1, 4)
     mid = (segments[:, :2] + segments[:, 2:]) / 2
     segments = segments[np.lexsort((mid[:, 1], np.floor(mid[:, 0] / 25.0)))]     # spatially compact chunks
     d = truth.walls[wall, 2:] - truth.walls[wall, :2]
     d = d / np.hypot(d[:, 0], d[:, 1])[:, None]
-    covered = np.zeros(len(points), bool)
     for a in range(0, len(segments), chunk):
         part = segments[a:a + chunk]
         todo = np.flatnonzero(~covered)
@@ -194,4 +202,115 @@ def union_coverage(segments: np.ndarray, truth: GroundTruth, chunk: int = 64) ->
         near = todo[np.all((points[todo] >= lo) & (points[todo] <= hi), axis=1)]
         if len(near):
             covered[near] |= lies_on_matrix(points[near], d[near], part).any(axis=1)
+    return points, wall, weight, covered
+
+
+def union_coverage(segments: np.ndarray, truth: GroundTruth, chunk: int = 64) -> float | None:
+    """Share of the observable walls' observed length lying on at least one of ``segments`` (K, 4)."""
+    _, _, weight, covered = covered_samples(segments, truth, chunk)
+    if not len(weight):
+        return None
     return float(weight[covered].sum() / weight.sum())
+
+
+# --- where coverage is lost -----------------------------------------------------------------------------
+
+GRAZING_VIEW_DEG = 84.0
+"""An uncovered stretch is *grazing* when its most head-on view is at least this far from head-on (degrees)."""
+FAR_VIEW_M = 80.0
+"""... *far* when its nearest view is farther than this (metres) ..."""
+FEW_VIEWS = 2
+"""... and *few views* when at most this many scans observed it (else *other*)."""
+LOSS_KINDS = ("grazing", "far", "few views", "other")
+"""The kinds of :meth:`UncoveredStretches.kind`, in the order they are tested."""
+
+
+@dataclass(frozen=True)
+class UncoveredStretches:
+    """Stretches of observed wall that no segment covers (U stretches), and how the drive saw each.
+
+    Attributes:
+        wall: (U,) wall index; start, end: (U,) metres along the wall (from its first vertex).
+        n_views: (U,) counting observations (one per scan) whose observed stretches overlap it.
+        nearest_m: (U,) distance from the nearest of those scans' sensor to its midpoint (metres).
+        nearest_incidence_deg: (U,) that view's angle from head-on (0 = facing the wall).
+        best_incidence_deg: (U,) the smallest angle from head-on of all its views.
+        max_hits: (U,) the most rays one of those scans put on the wall (all of it, not the stretch).
+        observed_m: the observed length of all the observable walls, covered or not (metres).
+    NaN distances and angles (and 0 views) where no view is known (no sensor position for its scans).
+    """
+
+    wall: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
+    n_views: np.ndarray
+    nearest_m: np.ndarray
+    nearest_incidence_deg: np.ndarray
+    best_incidence_deg: np.ndarray
+    max_hits: np.ndarray
+    observed_m: float = 0.0
+
+    def __len__(self) -> int:
+        return len(self.wall)
+
+    @property
+    def length(self) -> np.ndarray:
+        return self.end - self.start
+
+    def kind(self) -> np.ndarray:
+        """(U,) how the drive saw each stretch at best (:data:`LOSS_KINDS`): ``grazing`` (every view at least
+        :data:`GRAZING_VIEW_DEG` from head-on), else ``far`` (every view beyond :data:`FAR_VIEW_M`), else
+        ``few views`` (at most :data:`FEW_VIEWS` scans), else ``other``."""
+        out = np.full(len(self), LOSS_KINDS[3], dtype=object)
+        out[self.n_views <= FEW_VIEWS] = LOSS_KINDS[2]
+        out[self.nearest_m > FAR_VIEW_M] = LOSS_KINDS[1]
+        out[self.best_incidence_deg >= GRAZING_VIEW_DEG] = LOSS_KINDS[0]
+        return out
+
+
+def uncovered_stretches(segments: np.ndarray, truth: GroundTruth, obs: ScanObservations,
+                        sensor_xy: dict[int, np.ndarray], join_m: float = 2.5 * STEP_M) -> UncoveredStretches:
+    """The observed wall length that no segment covers, as stretches, with the views that observed them.
+
+    Args:
+        segments: (K, 4) segments in the frame of ``truth`` (e.g. every scan's, for the fusion's ceiling).
+        truth: walls and their observed parts (:func:`truth_from_observations` of ``obs``).
+        obs: the counting observations behind ``truth`` (their ``wall`` indexes ``truth.walls``).
+        sensor_xy: frame -> (2,) sensor position in the same frame.
+        join_m: uncovered samples of one wall this close along it form one stretch.
+    Returns:
+        The stretches, longest first; their lengths add up to the uncovered observed length (to a sample).
+    """
+    points, wall, weight, covered = covered_samples(segments, truth)
+    rows = []
+    lost = np.flatnonzero(~covered)
+    p_all, q_all = truth.walls[:, :2], truth.walls[:, 2:]
+    for w in np.unique(wall[lost]):
+        mine = lost[wall[lost] == w]
+        p, q = p_all[w], q_all[w]
+        u = (q - p) / np.hypot(*(q - p))
+        normal = np.array([-u[1], u[0]])
+        t = (points[mine] - p) @ u
+        order = np.argsort(t)
+        t, half = t[order], weight[mine][order] / 2
+        cut = np.flatnonzero(np.diff(t) > join_m) + 1
+        for a_idx, b_idx in zip(np.concatenate([[0], cut]), np.concatenate([cut, [len(t)]])):
+            a, b = float(t[a_idx] - half[a_idx]), float(t[b_idx - 1] + half[b_idx - 1])
+            mid = p + (a + b) / 2 * u
+            views = [o for o in np.flatnonzero(obs.wall == w)
+                     if int(obs.frame[o]) in sensor_xy and any(s < b and e > a for s, e in obs.intervals(o))]
+            if views:
+                ray = mid - np.array([np.asarray(sensor_xy[int(obs.frame[o])])[:2] for o in views])
+                dist = np.hypot(ray[:, 0], ray[:, 1])
+                incidence = np.degrees(np.arccos(np.clip(np.abs(ray @ normal) / np.maximum(dist, 1e-9), 0.0, 1.0)))
+                k = int(np.argmin(dist))
+                rows.append((w, a, b, len(views), dist[k], incidence[k], incidence.min(), int(obs.n_hits[views].max())))
+            else:
+                rows.append((w, a, b, 0, np.nan, np.nan, np.nan, 0))
+    rows.sort(key=lambda r: r[1] - r[2])
+    cols = list(zip(*rows)) if rows else [[]] * 8
+    return UncoveredStretches(wall=np.array(cols[0], np.int64), start=np.array(cols[1], float),
+                              end=np.array(cols[2], float), n_views=np.array(cols[3], np.int64),
+                              nearest_m=np.array(cols[4], float), nearest_incidence_deg=np.array(cols[5], float),
+                              best_incidence_deg=np.array(cols[6], float), max_hits=np.array(cols[7], np.int64),
+                              observed_m=float(weight.sum()))

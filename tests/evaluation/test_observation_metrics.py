@@ -5,7 +5,7 @@ import pytest
 
 from featmap.evaluation import GroundTruth, truth_metrics
 from featmap.evaluation.observation_metrics import (lies_on_matrix, match_observations, merge_intervals, observation_samples,
-                                         truth_from_observations, union_coverage)
+                                         truth_from_observations, uncovered_stretches, union_coverage)
 from featmap.io.sim_truth import ScanObservations
 from featmap.simulation.observations import concatenate, observe_scan
 
@@ -105,3 +105,39 @@ def test_drive_truth_is_the_union_of_counting_observations():
     assert union_coverage(segments, truth) == pytest.approx(expected, abs=0.015)
     assert union_coverage(segments, truth) == pytest.approx(truth_metrics(segments, truth)["recall"])
     assert union_coverage(np.zeros((0, 4)), truth) == 0.0
+
+
+def test_uncovered_stretches_and_how_they_were_seen():
+    base = GroundTruth(walls=WALLS, building=np.array(["a", "a"]), labels=np.array([["", ""], ["", ""]]),
+                       observed=[[], []], n_returns=np.zeros(2, int))
+    obs = _obs([(0, 0, 500, [(0, 10)]), (1, 0, 400, [(0, 10)]), (3, 0, 300, [(0, 10)]),
+                (4, 0, 60, [(0, 2)]),            # sees only the first 2 m of wall 0
+                (2, 1, 80, [(0, 8)])])           # wall 1, from almost straight along it
+    truth = truth_from_observations(base, obs)
+    sensors = {0: np.array([5.0, -10.0]), 1: np.array([5.0, -90.0]), 3: np.array([5.0, -20.0]),
+               4: np.array([1.0, -5.0]), 2: np.array([10.5, -40.0])}
+    segments = np.array([[1.0, 0.0, 4.0, 0.0]])          # covers x in [0.7, 4.3] of wall 0 (0.3 m tolerance)
+    lost = uncovered_stretches(segments, truth, obs, sensors)
+    # longest first: all of wall 1, then wall 0 beyond the segment, then before it
+    assert lost.wall.tolist() == [1, 0, 0]
+    assert lost.start == pytest.approx([0.0, 4.3, 0.0], abs=0.06)
+    assert lost.end == pytest.approx([8.0, 10.0, 0.7], abs=0.06)
+    assert lost.observed_m == pytest.approx(18.0)
+    assert lost.length.sum() == pytest.approx((1 - union_coverage(segments, truth)) * 18.0, abs=1e-9)
+    assert lost.n_views.tolist() == [1, 3, 4]              # scan 4 saw only [0, 2]
+    assert lost.max_hits.tolist() == [80, 500, 500]
+    # wall 1 from (10.5, -40): 44 m away, 89.3 deg from head-on; wall 0's far stretch nearest from scan 0
+    assert lost.nearest_m[0] == pytest.approx(np.hypot(0.5, 44.0), abs=1e-6)
+    assert lost.best_incidence_deg[0] == pytest.approx(np.degrees(np.arccos(0.5 / np.hypot(0.5, 44.0))), abs=1e-6)
+    assert lost.nearest_m[1] == pytest.approx(np.hypot(7.15 - 5.0, 10.0), abs=0.05)
+    assert lost.nearest_incidence_deg[1] == pytest.approx(np.degrees(np.arctan(2.15 / 10.0)), abs=0.3)
+    assert lost.kind().tolist() == ["grazing", "other", "other"]
+    # the same stretches seen from fewer places: only from 90 m away, or by two scans
+    far = uncovered_stretches(segments, truth, obs, {1: sensors[1]})
+    assert far.kind().tolist() == ["few views", "far", "far"] and far.n_views.tolist() == [0, 1, 1]   # wall 1: no view known
+    few = uncovered_stretches(segments, truth, obs, {0: sensors[0], 3: sensors[3], 2: sensors[2]})
+    assert few.kind().tolist() == ["grazing", "few views", "few views"]
+    # nothing lost when everything is covered; every view unknown when no sensor position is
+    assert len(uncovered_stretches(np.array([[0.0, 0.0, 10.0, 0.0], [10.0, 0.0, 10.0, 8.0]]), truth, obs, sensors)) == 0
+    unknown = uncovered_stretches(segments, truth, obs, {})
+    assert unknown.n_views.tolist() == [0, 0, 0] and np.isnan(unknown.nearest_m).all()

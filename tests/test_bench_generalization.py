@@ -1,0 +1,61 @@
+"""benchmarks/bench_generalization.py: held-out worlds are not looked into, and the loss report adds up."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rich.console import Console
+
+from featmap.evaluation.observation_metrics import UncoveredStretches
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("bench_generalization", ROOT / "benchmarks" / "bench_generalization.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["bench_generalization"] = module       # (its dataclass looks its module up while it is made)
+    spec.loader.exec_module(module)
+    yield module
+    del sys.modules["bench_generalization"]
+
+
+def test_losses_are_refused_on_held_out_worlds(bench, tmp_path, capsys):
+    # refused before anything is simulated or extracted
+    assert bench.main(["--split", "heldout", "--losses", "5", "--sim-root", str(tmp_path)]) == 2
+    out = capsys.readouterr().out
+    assert out.count("\n") == 1 and "--losses" in out and "held-out" in out
+    assert not any(tmp_path.iterdir())
+
+
+def _stretches(lengths, views, nearest, best):
+    n = len(lengths)
+    return UncoveredStretches(wall=np.arange(n), start=np.zeros(n), end=np.array(lengths, float),
+                              n_views=np.array(views), nearest_m=np.array(nearest, float),
+                              nearest_incidence_deg=np.array(best, float), best_incidence_deg=np.array(best, float),
+                              max_hits=np.full(n, 100), observed_m=500.0)
+
+
+def test_loss_report_adds_the_kinds_up(bench):
+    a = _stretches([4.0, 1.0], [5, 1], [30.0, 20.0], [86.0, 10.0])     # grazing 4 m, few views 1 m
+    b = _stretches([2.5, 0.5], [9, 9], [95.0, 40.0], [5.0, 30.0])      # far 2.5 m, other 0.5 m
+    results = [bench.WorldResult(seed, "sensor", 1, 1, 1, (0, 0), (0, 0), 1.0, 1.0, 0.99, 1, [], [], {}, lost)
+               for seed, lost in ((1, a), (2, b))]
+    console = Console(record=True, width=250)
+    bench.print_losses(results, 3, console)
+    text = console.export_text()
+    rows = {line.split("│")[1].strip(): [c.strip() for c in line.split("│")[2:-1]]
+            for line in text.splitlines() if line.startswith("│")}
+    assert rows["grazing"][:4] == ["1", "4.0", "0.50", "0.0040"]
+    assert rows["far"][:4] == ["1", "2.5", "0.31", "0.0025"]
+    assert rows["few views"][:4] == ["1", "1.0", "0.12", "0.0010"]
+    assert rows["other"][:4] == ["1", "0.5", "0.06", "0.0005"]
+    assert rows["all"][:4] == ["4", "8.0", "1.00", "0.0080"]
+    # the longest three, longest first (seed, length, kind)
+    longest = [(cells[0].strip(), cells[4].strip(), cells[10].strip()) for cells in
+               (line.split("│")[1:-1] for line in text.splitlines() if line.startswith("│"))
+               if cells[0].strip() in ("1", "2")]
+    assert longest == [("1", "4.0", "grazing"), ("2", "2.5", "far"), ("1", "1.0", "few views")]
