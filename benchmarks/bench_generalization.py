@@ -64,8 +64,9 @@ from rich.table import Table
 from featmap.datasets import KittiRawDataset
 from featmap.errors import FeatmapError
 from featmap.evaluation import load_simulator_truth, truth_metrics
-from featmap.evaluation.observation_metrics import (FAR_VIEW_M, FEW_VIEWS, GRAZING_VIEW_DEG, LOSS_KINDS, UncoveredStretches, match_observations,
-                                                   truth_from_observations, uncovered_stretches, union_coverage)
+from featmap.evaluation.observation_metrics import (FAR_VIEW_M, FEW_VIEWS, GRAZING_VIEW_DEG, LOSS_KINDS,
+                                                   UncoveredStretches, match_observations, truth_from_observations,
+                                                   uncovered_stretches, union_coverage)
 from featmap.fusion import fuse
 from featmap.io.segments_csv import SegmentTable
 from featmap.io.sim_truth import read_observations
@@ -372,6 +373,8 @@ def _run(args, console: Console) -> int:
 
     from featmap.fusion.registry import resolve_methods
 
+    if args.losses < 0:
+        raise FeatmapError(f"--losses {args.losses}: the number of stretches to list must be >= 0")
     allowed = split_seeds(args.split)
     seeds = list(args.seeds or allowed)
     if args.split == "tuning":               # any world that is not held out may be developed on

@@ -29,6 +29,8 @@ def test_losses_are_refused_on_held_out_worlds(bench, tmp_path, capsys):
     out = capsys.readouterr().out
     assert out.count("\n") == 1 and "--losses" in out and "held-out" in out
     assert not any(tmp_path.iterdir())
+    assert bench.main(["--losses", "-1", "--sim-root", str(tmp_path)]) == 2
+    assert "--losses -1" in capsys.readouterr().out and not any(tmp_path.iterdir())
 
 
 def _stretches(lengths, views, nearest, best):
