@@ -294,11 +294,11 @@ def uncovered_stretches(segments: np.ndarray, truth: GroundTruth, obs: ScanObser
         order = np.argsort(t)
         t, half = t[order], weight[mine][order] / 2
         cut = np.flatnonzero(np.diff(t) > join_m) + 1
+        seen_by = [(o, obs.intervals(o)) for o in np.flatnonzero(obs.wall == w) if int(obs.frame[o]) in sensor_xy]
         for a_idx, b_idx in zip(np.concatenate([[0], cut]), np.concatenate([cut, [len(t)]])):
             a, b = float(t[a_idx] - half[a_idx]), float(t[b_idx - 1] + half[b_idx - 1])
             mid = p + (a + b) / 2 * u
-            views = [o for o in np.flatnonzero(obs.wall == w)
-                     if int(obs.frame[o]) in sensor_xy and any(s < b and e > a for s, e in obs.intervals(o))]
+            views = [o for o, intervals in seen_by if any(s < b and e > a for s, e in intervals)]
             if views:
                 ray = mid - np.array([np.asarray(sensor_xy[int(obs.frame[o])])[:2] for o in views])
                 dist = np.hypot(ray[:, 0], ray[:, 1])
