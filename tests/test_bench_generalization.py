@@ -1,26 +1,17 @@
 """benchmarks/bench_generalization.py: held-out worlds are not looked into, and the loss report adds up."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 from rich.console import Console
 
 from featmap.evaluation.observation_metrics import UncoveredStretches
-
-ROOT = Path(__file__).resolve().parents[1]
+from tests.repo_scripts import repo_script
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_generalization", ROOT / "benchmarks" / "bench_generalization.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["bench_generalization"] = module       # (its dataclass looks its module up while it is made)
-    spec.loader.exec_module(module)
-    yield module
-    del sys.modules["bench_generalization"]
+    with repo_script("benchmarks/bench_generalization.py") as module:
+        yield module
 
 
 def test_losses_are_refused_on_held_out_worlds(bench, tmp_path, capsys):

@@ -1,20 +1,17 @@
 """The README's result tables are the ones the scripts wrote into docs/ (no stale copy)."""
 
-import importlib.util
-from pathlib import Path
+import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _doc_blocks():
-    spec = importlib.util.spec_from_file_location("doc_blocks", ROOT / "scripts" / "doc_blocks.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from tests.repo_scripts import ROOT, repo_script
 
 
-def test_every_readme_table_matches_its_docs_page():
-    db = _doc_blocks()
+@pytest.fixture(scope="module")
+def db():
+    with repo_script("scripts/doc_blocks.py") as module:
+        yield module
+
+
+def test_every_readme_table_matches_its_docs_page(db):
     readme = db.blocks((ROOT / "README.md").read_text())
     docs = db.doc_blocks(ROOT)
     for name, body in readme.items():
@@ -23,8 +20,7 @@ def test_every_readme_table_matches_its_docs_page():
         assert body == expected, f"README table '{name}' differs from {page.name}: run scripts/doc_blocks.py"
 
 
-def test_block_round_trip(tmp_path):
-    db = _doc_blocks()
+def test_block_round_trip(db, tmp_path):
     (tmp_path / "docs").mkdir()
     page = tmp_path / "docs" / "r.md"
     db.replace_block(page, "t", "| a |\n|---|\n| 1 |")

@@ -1,23 +1,20 @@
 """scripts/refresh_figures.py: which steps a change selects, and a resumed run does only what is left."""
 
-import importlib.util
 import re
 import sys
 from pathlib import Path
 
 import pytest
 
+from tests.repo_scripts import repo_script
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def rf():
-    spec = importlib.util.spec_from_file_location("refresh_figures", ROOT / "scripts" / "refresh_figures.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["refresh_figures"] = module            # (its dataclass looks its module up while it is made)
-    spec.loader.exec_module(module)
-    yield module
-    del sys.modules["refresh_figures"]
+    with repo_script("scripts/refresh_figures.py") as module:
+        yield module
 
 
 def test_every_docs_block_is_written_by_exactly_one_step(rf):
