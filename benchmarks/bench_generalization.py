@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_generalization.py [--split tuning|heldout] [--seeds S ...]
         [--frames a:b:c] [--workers 2] [--set key=value ...] [--cache-dir DIR] [--no-cache] [--json FILE] [--docs]
-        [--losses K]
+        [--losses K] [--variant "key=value [key=value ...]" ...]
 
 Worlds come from :mod:`featmap.simulation.procedural` (house rows, apartment blocks, courtyards,
 side streets, far walls 50-100 m away, cars, fences, hedges, poles, trees, sloped streets with
@@ -38,6 +38,12 @@ Per world and overall it prints:
   segment coverage is lost, i.e. the observed wall length no segment covers, by how the drive saw it at
   best (every view >= 84 deg from head-on, every view > 80 m away, at most 2 scans, other), and the K
   longest uncovered stretches with their views (``featmap.evaluation.observation_metrics.uncovered_stretches``).
+- with ``--variant "KEY=VALUE ..."`` (repeatable; tuning and probe worlds only): the same worlds again
+  with each variant's settings on top of ``--set``, and a table comparing every variant with the
+  configuration without them (observation recall, segment coverage and each method's precision and
+  recall, mean and worst world), then the worlds where a variant moved precision, recall or segment
+  coverage by at least ``CHANGED`` (``--json`` holds every variant's numbers). Only the variants
+  whose extraction settings differ extract again; the cache keeps each.
 
 Extraction goes through the pipeline's own loop (:func:`featmap.pipeline.extract.extract_source`) with
 the configured extractor (``--set extraction.method_3d=NAME`` picks another registered one) and its
@@ -80,6 +86,8 @@ DRIVE = f"{SIM_DATE}_drive_0001"
 MAX_WORKERS = 2
 FAR_M = 50.0
 FEW_HITS = (50, 300)
+CHANGED = 0.002
+"""A variant's per-world change listed in the comparison (precision, recall or segment coverage)."""
 
 
 # --- drives ------------------------------------------------------------------------------------------
@@ -300,6 +308,69 @@ def _losses_json(lost: UncoveredStretches) -> dict:
                            "kind": str(kinds[i])} for i in range(len(lost))]}
 
 
+# --- variants --------------------------------------------------------------------------------------------
+
+def parse_variant(text: str) -> list[str]:
+    """The ``KEY=VALUE`` overrides of one ``--variant`` (separated by spaces); checked by ``load_config``."""
+    overrides = text.split()
+    if not overrides:
+        raise FeatmapError("--variant '': give one or more KEY=VALUE settings, "
+                           "e.g. --variant extraction.vertical_structure.tall_m=2.0")
+    return overrides
+
+
+def _mean_worst(results: list[WorldResult], value, worst=min) -> str:
+    """'mean / worst (seed)' of ``value(r)`` over the worlds where it is known."""
+    known = [(value(r), r.seed) for r in results if value(r) is not None]
+    if not known:
+        return "-"
+    v, seed = worst(known, key=lambda t: t[0])
+    return f"{np.mean([k for k, _ in known]):.3f} / {v:.3f} ({seed})"
+
+
+def variant_tables(baseline: list[WorldResult], variants: list[tuple[str, list[WorldResult]]],
+                   methods: list[str]) -> list[Table]:
+    """Every variant against ``baseline`` (the same worlds, in the same order): one row per setting and
+    method, then the worlds where a variant moved precision, recall or segment coverage by >= ``CHANGED``."""
+    table = Table(title=f"variants on {len(baseline)} worlds (mean / worst world)")
+    for col in ("setting", "method", "obs recall", "segment cov.", "precision", "recall", "redundancy"):
+        table.add_column(col, justify="left" if col in ("setting", "method") else "right")
+    for label, results in [("as configured", baseline), *variants]:
+        for name in methods:
+            table.add_row(label, name, _share(sum(r.found for r in results), sum(r.n_obs for r in results)),
+                          _mean_worst(results, lambda r: r.segment_coverage),
+                          _mean_worst(results, lambda r: r.methods[name]["precision"]),
+                          _mean_worst(results, lambda r: r.methods[name]["recall"]),
+                          _mean_worst(results, lambda r: r.methods[name]["redundancy"], max))
+    changes = Table(title=f"worlds a variant moved by >= {CHANGED} (precision, recall or segment coverage)")
+    for col in ("setting", "seed", "method", "precision", "recall", "segment cov."):
+        changes.add_column(col, justify="left" if col in ("setting", "method") else "right")
+
+    def moved(a, b) -> bool:
+        return a is not None and b is not None and abs(b - a) >= CHANGED
+
+    def arrow(a, b) -> str:
+        return f"{_num(a, '.3f')} -> {_num(b, '.3f')}"
+
+    for label, results in variants:
+        for before, after in zip(baseline, results):
+            for name in methods:
+                m0, m1 = before.methods[name], after.methods[name]
+                if (moved(m0["precision"], m1["precision"]) or moved(m0["recall"], m1["recall"])
+                        or moved(before.segment_coverage, after.segment_coverage)):
+                    changes.add_row(label, str(before.seed), name, arrow(m0["precision"], m1["precision"]),
+                                    arrow(m0["recall"], m1["recall"]),
+                                    arrow(before.segment_coverage, after.segment_coverage))
+    return [table, changes]
+
+
+def _world_json(r: WorldResult) -> dict:
+    return {**{k: v for k, v in r.__dict__.items() if k not in ("extract_ms", "points", "losses")},
+            **({"losses": _losses_json(r.losses)} if r.losses is not None else {}),
+            "median_extract_ms": statistics.median(r.extract_ms) if r.extract_ms else None,
+            "median_points": statistics.median(r.points)}
+
+
 def markdown_summary(results: list[WorldResult], methods: list[str], split: str, frames: str | None) -> str:
     """The summary the README and docs/results.md quote: per-scan extraction and the fused maps per method
     (mean over the worlds and the worst world)."""
@@ -358,6 +429,9 @@ def main(argv: list[str] | None = None) -> int:
                              "how the drive saw it, and the K longest uncovered stretches (not with --split heldout)")
     parser.add_argument("--docs", action="store_true",
                         help="write the summary into docs/results.md (block generalization_<split>)")
+    parser.add_argument("--variant", action="append", default=[], metavar='"KEY=VALUE ..."',
+                        help="also run the worlds with these settings on top of --set and compare (repeatable; "
+                             "not with --split heldout or --docs)")
     args = parser.parse_args(argv)
     console = Console(highlight=False, width=None if os.isatty(1) else 200)
     try:
@@ -365,6 +439,39 @@ def main(argv: list[str] | None = None) -> int:
     except FeatmapError as exc:
         console.print(f"error: {exc}")
         return 2
+
+
+def score_split(args, seeds: list[int], config, methods: list[str], store: SegmentStore, workers: int,
+                losses: bool = False) -> tuple[list[WorldResult], float, int, int]:
+    """Extract (through the cache) and score every world of ``seeds`` with ``config`` (with ``losses``, also
+    where the segment coverage is lost): the worlds' results, the extraction's wall seconds, the scans
+    extracted now (not from the cache) and all the scans."""
+    frames_of: dict[int, list[int]] = {}
+    per_seed: dict[int, dict] = {}
+    start = time.perf_counter()
+    extracted_now = 0
+    with (ProcessExecutor(workers) if workers > 1 else SerialExecutor()) as executor:
+        for seed in seeds:
+            ds = KittiRawDataset(drive_root(args.sim_root, args.split, seed), DRIVE, args.frames)
+            extraction = extract_source(ds, config.extraction, store, executor)
+            table = extraction.world_table()
+            frames_of[seed] = extraction.frames
+            extracted_now += extraction.extracted_now
+            per_seed[seed] = {"table": table, "ms": [1000 * t for t in extraction.scan_seconds],
+                              "points": [len(ds[0].points)]}
+    wall_seconds = time.perf_counter() - start
+    results = []
+    for seed in seeds:
+        acc = per_seed[seed]
+        table = acc["table"]
+        root = drive_root(args.sim_root, args.split, seed)
+        scored = score_world(root, frames_of[seed], table, config, methods, losses=losses)
+        g = generate(seed).settings
+        label = f"{g.sensor.name} {g.sensor.azimuth_step_deg:.2f}° {100 * g.noise_m:.1f}cm {100 * g.dropout:.0f}%"
+        results.append(WorldResult(seed, label, len(frames_of[seed]), scored["n_obs"], scored["found"], scored["few"],
+                                   scored["far"], scored["covered_m"], scored["observed_m"], scored["segment_coverage"],
+                                   len(table), acc["ms"], acc["points"], scored["methods"], scored.get("losses")))
+    return results, wall_seconds, extracted_now, sum(len(f) for f in frames_of.values())
 
 
 def _run(args, console: Console) -> int:
@@ -385,11 +492,18 @@ def _run(args, console: Console) -> int:
         if args.losses:
             raise FeatmapError("--losses: held-out worlds are run only to report, not looked into; "
                                "look into tuning or probe worlds (--split tuning)")
+        if args.variant:
+            raise FeatmapError("--variant: held-out worlds are run only to report, not to compare settings on; "
+                               "compare on tuning or probe worlds (--split tuning)")
         stray = [s for s in seeds if s not in allowed]
         if stray:
             raise FeatmapError(f"--seeds {stray}: not in the {args.split} split ({', '.join(map(str, allowed))})")
+    if args.variant and args.docs:
+        raise FeatmapError("--variant with --docs: the docs hold the configuration without variants; "
+                           "run the variants without --docs")
     workers = max(1, min(MAX_WORKERS, args.workers))
     config = load_config(None, args.overrides)
+    variants = [(text, load_config(None, [*args.overrides, *parse_variant(text)])) for text in args.variant]
     methods = resolve_methods(args.methods)
     extractor = config.extraction.method_3d
     store = SegmentStore(None if args.no_cache else args.cache_dir)
@@ -409,38 +523,21 @@ def _run(args, console: Console) -> int:
     if missing:
         console.print(f"simulated in {time.perf_counter() - start:.0f} s")
 
-    frames_of: dict[int, list[int]] = {}
-    per_seed: dict[int, dict] = {}
-    start = time.perf_counter()
-    extracted_now = 0
-    with (ProcessExecutor(workers) if workers > 1 else SerialExecutor()) as executor:
-        for seed in seeds:
-            ds = KittiRawDataset(drive_root(args.sim_root, args.split, seed), DRIVE, args.frames)
-            extraction = extract_source(ds, config.extraction, store, executor)
-            table = extraction.world_table()
-            frames_of[seed] = extraction.frames
-            extracted_now += extraction.extracted_now
-            per_seed[seed] = {"table": table, "ms": [1000 * t for t in extraction.scan_seconds],
-                              "points": [len(ds[0].points)]}
-    wall_seconds = time.perf_counter() - start
-    if extracted_now < sum(len(f) for f in frames_of.values()):
-        console.print(f"{sum(len(f) for f in frames_of.values()) - extracted_now} scans came from the cache "
-                      f"({args.cache_dir}); the speed below counts only the {extracted_now} extracted now")
-
-    results = []
-    for seed in seeds:
-        acc = per_seed[seed]
-        table = acc["table"]
-        root = drive_root(args.sim_root, args.split, seed)
-        scored = score_world(root, frames_of[seed], table, config, methods, losses=args.losses > 0)
-        g = generate(seed).settings
-        label = f"{g.sensor.name} {g.sensor.azimuth_step_deg:.2f}° {100 * g.noise_m:.1f}cm {100 * g.dropout:.0f}%"
-        results.append(WorldResult(seed, label, len(frames_of[seed]), scored["n_obs"], scored["found"], scored["few"],
-                                   scored["far"], scored["covered_m"], scored["observed_m"], scored["segment_coverage"],
-                                   len(table), acc["ms"], acc["points"], scored["methods"], scored.get("losses")))
+    results, wall_seconds, extracted_now, scans = score_split(args, seeds, config, methods, store, workers,
+                                                              losses=args.losses > 0)
+    if extracted_now < scans:
+        console.print(f"{scans - extracted_now} scans came from the cache ({args.cache_dir}); the speed below "
+                      f"counts only the {extracted_now} extracted now")
     print_report(results, methods, args.split, wall_seconds, workers, console, extracted_now)
     if args.losses:
         print_losses(results, args.losses, console)
+    compared = []
+    for text, variant_config in variants:
+        console.print(f"variant {text}:")
+        compared.append((text, score_split(args, seeds, variant_config, methods, store, workers)[0]))
+    if compared:
+        for table in variant_tables(results, compared, methods):
+            console.print(table)
     if args.docs:
         sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
         from doc_blocks import replace_block, rich_table_markdown
@@ -462,10 +559,8 @@ def _run(args, console: Console) -> int:
 
         payload = {"split": args.split, "frames": args.frames, "extractor": extractor, "workers": workers,
                    "extraction_wall_seconds": wall_seconds,
-                   "worlds": [{**{k: v for k, v in r.__dict__.items() if k not in ("extract_ms", "points", "losses")},
-                               **({"losses": _losses_json(r.losses)} if r.losses is not None else {}),
-                               "median_extract_ms": statistics.median(r.extract_ms) if r.extract_ms else None,
-                               "median_points": statistics.median(r.points)} for r in results]}
+                   "worlds": [_world_json(r) for r in results],
+                   "variants": [{"variant": text, "worlds": [_world_json(r) for r in rs]} for text, rs in compared]}
         atomic_write_text(args.json, json.dumps(payload, indent=1, default=float))
     return 0
 

@@ -52,3 +52,36 @@ def test_loss_report_adds_the_kinds_up(bench):
                (line.split("│")[1:-1] for line in text.splitlines() if line.startswith("│"))
                if cells[0].strip() in ("1", "2")]
     assert longest == [("1", "4.0", "grazing"), ("2", "2.5", "far"), ("1", "1.0", "few views")]
+
+
+def test_variants_are_refused_on_held_out_worlds_with_docs_and_bad_keys(bench, tmp_path, capsys):
+    # each refused in one line before anything is simulated or extracted
+    for argv, words in ((["--split", "heldout", "--variant", "extraction.vertical_structure.tall_m=2"], ("--variant", "held-out")),
+                        (["--variant", "extraction.vertical_structure.tall_m=2", "--docs"], ("--variant", "--docs")),
+                        (["--variant", "extraction.vertical_structure.no_such_key=2"], ("no_such_key",)),
+                        (["--variant", " "], ("--variant", "KEY=VALUE"))):
+        assert bench.main([*argv, "--sim-root", str(tmp_path)]) == 2, argv
+        out = capsys.readouterr().out
+        assert out.count("\n") == 1 and all(w in out for w in words), (argv, out)
+        assert not any(tmp_path.iterdir())
+
+
+def _world(bench, seed, coverage, precision, recall, found=90, n_obs=100):
+    methods = {"proposed": {"precision": precision, "recall": recall, "redundancy": 1.0}}
+    return bench.WorldResult(seed, "sensor", 10, n_obs, found, (0, 0), (0, 0), 1.0, 1.0, coverage, 5, [], [], methods)
+
+
+def test_variant_tables_compare_each_setting_with_the_configuration_without_it(bench):
+    baseline = [_world(bench, 1, 0.990, 0.995, 0.986), _world(bench, 2, 0.980, 0.975, 0.978)]
+    variant = [_world(bench, 1, 0.991, 0.995, 0.987, found=95), _world(bench, 2, 0.987, 0.969, 0.985, found=97)]
+    console = Console(record=True, width=250)
+    for table in bench.variant_tables(baseline, [("a.b=1", variant)], ["proposed"]):
+        console.print(table)
+    rows = [[c.strip() for c in line.split("│")[1:-1]] for line in console.export_text().splitlines()
+            if line.startswith("│")]
+    assert rows[0] == ["as configured", "proposed", "0.900", "0.985 / 0.980 (2)", "0.985 / 0.975 (2)",
+                       "0.982 / 0.978 (2)", "1.000 / 1.000 (1)"]
+    assert rows[1] == ["a.b=1", "proposed", "0.960", "0.989 / 0.987 (2)", "0.982 / 0.969 (2)",
+                       "0.986 / 0.985 (2)", "1.000 / 1.000 (1)"]
+    # world 1 moved by less than 0.002 everywhere: only world 2 is listed
+    assert rows[2:] == [["a.b=1", "2", "proposed", "0.975 -> 0.969", "0.978 -> 0.985", "0.980 -> 0.987"]]
