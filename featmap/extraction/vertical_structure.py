@@ -25,7 +25,9 @@ wall's points away. One pass, no randomness:
    ``max_lean_deg`` more (the per-piece lean taken out of its spread).
 4. **Structure cells**: returns more than ``ground_margin_m`` above the ground are binned in
    ``cell_m`` cells; a cell is a candidate when its highest return is at least ``cell_min_top_m``
-   up (this drops curbs, low bushes and the lower half of cars, not a wall seen behind them). Each
+   up (this drops curbs, low bushes and the lower half of cars, not a wall seen behind them; with
+   ``max_column_gap_m``, off by default, a cell's top is where its returns first leave a gap in height,
+   so a tree crown over a fence or a car does not lift it: :func:`continuous_tops`). Each
    cell knows whether the scan's top beam hit it (and the sensor does not see over it), or whether
    the top beam stopped in front of it (its top is hidden), and reaching the top beam counts only
    where that beam passes ``reach_min_m`` above the ground under the sensor (beyond ~8 m for an
@@ -108,6 +110,7 @@ class VerticalStructureConfig(Section):
     # structure cells and lines of cells
     cell_m: float = Field(0.15, gt=0, description="top-view cell of the structure grid")
     cell_min_top_m: float = Field(1.2, ge=0, description="a cell takes part when its highest return is this far above the ground")
+    max_column_gap_m: float = Field(0.0, ge=0, description="a cell's top is its highest return reached from its lowest without a gap in height longer than this plus 3 of the sensor's beam spacings at its range (a tree crown over a fence or a car does not make it tall; 0 = off: its highest return)")
     line_min_height_m: float = Field(1.0, ge=0, description="only returns this high above the ground place the lines (a car or bush in front of a wall does not pull it)")
     link_radius_m: float = Field(0.45, gt=0, description="cells this close are neighbours ...")
     link_azimuth_steps: float = Field(3.33, ge=0, description="... and so are cells seen within this many of the scan's azimuth steps (measured from its returns) ...")
@@ -158,6 +161,8 @@ class VerticalStructureConfig(Section):
     short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do")
 
 
+COLUMN_GAP_BEAMS = 3.0
+"""Beam spacings (at a cell's range) added to ``max_column_gap_m``: a wall's returns lie one beam apart in height."""
 COLUMN_M = 0.5
 """Length of the columns along a wall in which its height is judged (metres)."""
 MAX_TILT_DEG = 15.0
@@ -327,8 +332,13 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
     else:
         grid_counts = np.bincount(cell[height <= BEHIND_MAX_HEIGHT_M], minlength=n_all)
         grid_keys, grid_counts = keys[grid_counts > 0], grid_counts[grid_counts > 0]
-    top = np.full(n_all, -np.inf)
-    np.maximum.at(top, cell, height)
+    if config.max_column_gap_m > 0:
+        rng = np.hypot(xyz[:, 0], xyz[:, 1]) if sensor_rng is None else sensor_rng
+        gap = config.max_column_gap_m + COLUMN_GAP_BEAMS * rng * np.tan(np.deg2rad(config.elevation_step_deg))
+        top = continuous_tops(cell, height, n_all, gap)
+    else:
+        top = np.full(n_all, -np.inf)
+        np.maximum.at(top, cell, height)
     candidate = top >= max(config.cell_min_top_m, config.line_min_height_m)
     renumber = np.full(n_all, -1)
     renumber[candidate] = np.arange(int(candidate.sum()))
@@ -364,6 +374,23 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
     hidden = ~reaches & (top_range[b] < cell_range - SEEN_OVER_M)
     return Cells(point_cell, count, centroid, scatter, top[candidate], bottom, reaches, hidden,
                  grid_keys, grid_counts, (config.cell_m, i0, j0, width))
+
+
+def continuous_tops(cell: np.ndarray, height: np.ndarray, n: int, gap: np.ndarray) -> np.ndarray:
+    """(n,) per cell the highest of its points reached from its lowest without a step in height longer
+    than the upper point's ``gap`` (M,) (-inf: no point). ``cell`` (M,) in 0..n-1, ``height`` (M,)."""
+    top = np.full(n, -np.inf)
+    if len(cell) == 0:
+        return top
+    order = np.lexsort((height, cell))
+    c, h, g = cell[order], height[order], gap[order]
+    first = np.concatenate([[True], c[1:] != c[:-1]])
+    broken = np.concatenate([[False], ~first[1:] & (np.diff(h) > g[1:])])
+    breaks = np.cumsum(broken)
+    start = np.flatnonzero(first)
+    keep = breaks == breaks[start][np.cumsum(first) - 1]
+    np.maximum.at(top, c[keep], h[keep])
+    return top
 
 
 def highest_returns(xyz: np.ndarray, tan_top: float, config: VerticalStructureConfig, rng: np.ndarray | None = None):

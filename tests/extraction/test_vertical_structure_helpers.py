@@ -151,3 +151,30 @@ def test_seen_through_is_the_share_of_crossing_rays_that_return_beyond_the_line(
     outside = _rays_to(line_x, np.array([30.0, 40.0]), heights, np.ones(10, bool))   # beside the line's azimuths
     assert seen_through(np.concatenate([wall, outside]), a, b, z_lo, z_hi, step) == pytest.approx([0.0])
     assert seen_through(wall[:0], a, b, z_lo, z_hi, step) == pytest.approx([0.0])            # no ray: 0
+
+
+def test_continuous_tops_stop_at_the_first_gap_in_height():
+    from featmap.extraction.vertical_structure import continuous_tops
+
+    cell = np.array([0, 0, 0, 0, 1, 1, 2, 0])
+    height = np.array([0.6, 0.3, 2.5, 0.9, 0.5, 1.0, 3.0, 3.1])
+    gap = np.full(8, 0.5)
+    # cell 0: 0.3 0.6 0.9 | 2.5 3.1 (a 1.6 m gap); cell 1: a 0.5 m step is no gap; cell 3 has no point
+    assert continuous_tops(cell, height, 4, gap).tolist() == [0.9, 1.0, 3.0, -np.inf]
+    # the gap allowed is the upper point's: 2.5 may follow 0.9 when its own allowance is 2 m (and 3.1,
+    # 0.6 m above it, still may not)
+    gap[2] = 2.0
+    assert continuous_tops(cell, height, 4, gap).tolist() == [2.5, 1.0, 3.0, -np.inf]
+    assert continuous_tops(np.zeros(0, int), np.zeros(0), 2, np.zeros(0)).tolist() == [-np.inf, -np.inf]
+
+
+def test_a_crown_over_a_fence_lifts_its_cell_only_without_the_column_gap_rule():
+    from featmap.extraction.vertical_structure import VerticalStructureConfig, structure_cells
+
+    # one 15 cm cell 12 m ahead: a 1.3 m fence (returns every 0.1 m) and a crown from 3 to 5 m above it
+    heights = np.concatenate([np.arange(0.3, 1.31, 0.1), np.arange(3.0, 5.01, 0.25)])
+    xyz = np.column_stack([np.full(len(heights), 12.05), np.full(len(heights), 0.05), heights - 1.73])
+    for gap, top in ((0.0, 5.0), (0.8, 1.3)):
+        config = VerticalStructureConfig(max_column_gap_m=gap, elevation_step_deg=0.4)
+        cells = structure_cells(xyz, heights, np.tan(np.deg2rad(2.0)), config, lines_only=True)
+        assert cells.top.tolist() == pytest.approx([top]), gap
