@@ -382,7 +382,7 @@ def continuous_tops(cell: np.ndarray, height: np.ndarray, n: int, gap: np.ndarra
     top = np.full(n, -np.inf)
     if len(cell) == 0:
         return top
-    order = np.lexsort((height, cell))
+    order = _group_order(cell, height)
     c, h, g = cell[order], height[order], gap[order]
     first = np.concatenate([[True], c[1:] != c[:-1]])
     broken = np.concatenate([[False], ~first[1:] & (np.diff(h) > g[1:])])
