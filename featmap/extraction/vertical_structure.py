@@ -26,7 +26,7 @@ wall's points away. One pass, no randomness:
 4. **Structure cells**: returns more than ``ground_margin_m`` above the ground are binned in
    ``cell_m`` cells; a cell is a candidate when its highest return is at least ``cell_min_top_m``
    up (this drops curbs, low bushes and the lower half of cars, not a wall seen behind them; with
-   ``max_column_gap_m``, off by default, a cell's top is where its returns first leave a gap in height,
+   ``max_column_gap_m`` (0.8 m; 0 turns it off), a cell's top is where its returns first leave a gap in height,
    so a tree crown over a fence or a car does not lift it: :func:`continuous_tops`). Each
    cell knows whether the scan's top beam hit it (and the sensor does not see over it), or whether
    the top beam stopped in front of it (its top is hidden), and reaching the top beam counts only
@@ -110,7 +110,7 @@ class VerticalStructureConfig(Section):
     # structure cells and lines of cells
     cell_m: float = Field(0.15, gt=0, description="top-view cell of the structure grid")
     cell_min_top_m: float = Field(1.2, ge=0, description="a cell takes part when its highest return is this far above the ground")
-    max_column_gap_m: float = Field(0.0, ge=0, description="a cell's top is its highest return reached from its lowest without a gap in height longer than this plus 3 of the sensor's beam spacings at its range (a tree crown over a fence or a car does not make it tall; 0 = off: its highest return)")
+    max_column_gap_m: float = Field(0.8, ge=0, description="a cell's top is its highest return reached from its lowest without a gap in height longer than this plus 3 of the sensor's beam spacings at its range (a tree crown over a fence or a car does not make it tall; 0 = off: its highest return)")
     line_min_height_m: float = Field(1.0, ge=0, description="only returns this high above the ground place the lines (a car or bush in front of a wall does not pull it)")
     link_radius_m: float = Field(0.45, gt=0, description="cells this close are neighbours ...")
     link_azimuth_steps: float = Field(3.33, ge=0, description="... and so are cells seen within this many of the scan's azimuth steps (measured from its returns) ...")
