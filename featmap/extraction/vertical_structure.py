@@ -24,10 +24,11 @@ wall's points away. One pass, no randomness:
    ``segments_to_world`` puts them exactly back on the wall. A levelled wall may lean at most
    ``max_lean_deg`` more (the per-piece lean taken out of its spread).
 4. **Structure cells**: returns more than ``ground_margin_m`` above the ground are binned in
-   ``cell_m`` cells; a cell is a candidate when its highest return is at least ``cell_min_top_m``
-   up (this drops curbs, low bushes and the lower half of cars, not a wall seen behind them; with
-   ``max_column_gap_m`` (0.8 m; 0 turns it off), a cell's top is where its returns first leave a gap in height,
-   so a tree crown over a fence or a car does not lift it: :func:`continuous_tops`). Each
+   ``cell_m`` cells; a cell is a candidate when its top is at least ``cell_min_top_m`` up (this
+   drops curbs, low bushes and the lower half of cars, not a wall seen behind them). Its top is its
+   highest return reached from its lowest without a gap in height longer than ``max_column_gap_m``
+   (0.8 m; 0: its highest return) plus 3 beam spacings at its range, so a tree crown over a fence or
+   a car does not lift it (:func:`continuous_tops`). Each
    cell knows whether the scan's top beam hit it (and the sensor does not see over it), or whether
    the top beam stopped in front of it (its top is hidden), and reaching the top beam counts only
    where that beam passes ``reach_min_m`` above the ground under the sensor (beyond ~8 m for an
@@ -109,7 +110,7 @@ class VerticalStructureConfig(Section):
     max_lean_deg: float = Field(3.0, ge=0, le=15, description="a levelled wall leans at most this much (its spread is measured about that lean; a tree crown's facets lean more)")
     # structure cells and lines of cells
     cell_m: float = Field(0.15, gt=0, description="top-view cell of the structure grid")
-    cell_min_top_m: float = Field(1.2, ge=0, description="a cell takes part when its highest return is this far above the ground")
+    cell_min_top_m: float = Field(1.2, ge=0, description="a cell takes part when its top (see max_column_gap_m) is this far above the ground")
     max_column_gap_m: float = Field(0.8, ge=0, description="a cell's top is its highest return reached from its lowest without a gap in height longer than this plus 3 of the sensor's beam spacings at its range (a tree crown over a fence or a car does not make it tall; 0 = off: its highest return)")
     line_min_height_m: float = Field(1.0, ge=0, description="only returns this high above the ground place the lines (a car or bush in front of a wall does not pull it)")
     link_radius_m: float = Field(0.45, gt=0, description="cells this close are neighbours ...")
@@ -310,7 +311,8 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
                     sensor_xyz: np.ndarray | None = None, reach_from_m: float = 0.0, lines_only: bool = False,
                     sensor_rng: np.ndarray | None = None) -> Cells:
     """Group (M, 3) non-ground points (``height`` (M,) above the local ground) into ``cell_m`` cells and
-    keep the cells whose highest point is at least ``cell_min_top_m`` up. The cells' positions and
+    keep the cells whose top (:func:`continuous_tops` with ``max_column_gap_m``, else their highest point)
+    is at least ``cell_min_top_m`` up. The cells' positions and
     line moments come from their points at least ``line_min_height_m`` up; heights from all.
 
     ``xyz`` may be levelled (see ``level_rotation``); ``sensor_xyz`` (M, 3) are then the same points in
