@@ -216,9 +216,10 @@ YAW_CORNER = ("yaw-dependent short wall at a corner: at 74 of 36,000 yaws 0.01 d
               "deg wide, at 10.09, 37.34-37.37, 59.61-59.64, 60.13-60.16, 60.84, 64.93, 68.79 deg, 59.92 and 68.82 "
               "deg, and their repeats 90 deg on; 190.09375 found by hypothesis) the street's wall (15, 6)-(27, 6) ends 0.41-0.44 m "
               "short of its corner at (15, 6), or the wall (24, -14)-(38, -14) 0.37 m short of (24, -14) "
-              "(TRUE_END_TOL_M 0.35 m; 0.14 m short at 190 deg). The same with max_column_gap_m=0. The 15 cm top-view "
-              "grid is fixed to the sensor's axes, so a shift of the returns by millimetres against it changes "
-              "which cells at the corner the wall's piece keeps; not traced further")
+              "(TRUE_END_TOL_M 0.35 m; 0.14 m short at 190 deg). The same with max_column_gap_m=0. Traced at 10.09 "
+              "deg (against 10.0): link_cells (15 cm grid fixed to the sensor's axes) links the two cells next to "
+              "the corner, at x 15.17 and 15.30, to each other but not to the wall's next cell at 15.43, and "
+              "tall_pieces drops that two-cell piece")
 
 
 @settings(max_examples=15, deadline=None, database=None, derandomize=True)
