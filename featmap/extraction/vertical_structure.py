@@ -321,7 +321,7 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
     placing lines needs (point_cell, count, centroid, scatter, top, bottom; the rest empty).
     ``sensor_rng`` (M,): the horizontal ranges of ``sensor_xyz``, if already known."""
     sensor_xyz = xyz if sensor_xyz is None else sensor_xyz
-    if sensor_rng is None and not lines_only:
+    if sensor_rng is None and (not lines_only or config.max_column_gap_m > 0):
         sensor_rng = np.hypot(sensor_xyz[:, 0], sensor_xyz[:, 1])
     ci = np.floor(xyz[:, 0] / config.cell_m).astype(np.int64)
     cj = np.floor(xyz[:, 1] / config.cell_m).astype(np.int64)
@@ -335,8 +335,7 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
         grid_counts = np.bincount(cell[height <= BEHIND_MAX_HEIGHT_M], minlength=n_all)
         grid_keys, grid_counts = keys[grid_counts > 0], grid_counts[grid_counts > 0]
     if config.max_column_gap_m > 0:
-        rng = np.hypot(xyz[:, 0], xyz[:, 1]) if sensor_rng is None else sensor_rng
-        gap = config.max_column_gap_m + COLUMN_GAP_BEAMS * rng * np.tan(np.deg2rad(config.elevation_step_deg))
+        gap = config.max_column_gap_m + COLUMN_GAP_BEAMS * sensor_rng * np.tan(np.deg2rad(config.elevation_step_deg))
         top = continuous_tops(cell, height, n_all, gap)
     else:
         top = np.full(n_all, -np.inf)
