@@ -47,7 +47,10 @@ wall's points away. One pass, no randomness:
    ``max_gap_m``; pieces on one line with ends less than ``merge_gap_m`` apart are joined, and so
    are single columns of returns one azimuth step apart in line (a far wall seen at grazing
    incidence by a tilted sensor: each column a slanted streak a metre long, the next metres farther,
-   and no cell of it a metre high, so the columns' cells are never linked).
+   and no cell of it a metre high, so the columns' cells are never linked). Pieces that pass the
+   height tests take back the cells beside a corner that were left out of every piece of a wall's
+   length (:func:`corner_cells`): there the other face's denser cells can outvote them for their
+   direction, and how the grid cuts the corner decides it.
 7. **Walls**: a piece is a wall when it has ``min_points`` returns, ``min_length_m`` of length,
    ``max_rms_m`` of spread about its line at most, ``min_core_fraction`` of them close to their
    column's median offset and little seen through it (``max_behind``), is not seen edge-on
@@ -187,6 +190,8 @@ MIN_SEEN_FRACTION = 0.25
 this share of its columns (else over all its columns)."""
 SEEN_OVER_M = 0.5
 """A return this much farther away than a structure, and higher, was seen over it (metres)."""
+CORNER_MIN_DEG = 45.0
+"""Two pieces whose lines cross at least this steeply meet at a corner (degrees): see :func:`corner_cells`."""
 
 
 # --- stage 0: input -------------------------------------------------------------------------------------
@@ -704,6 +709,78 @@ def merge_collinear(cells: Cells, members: np.ndarray, piece: np.ndarray,
     chain = np.zeros(n, bool)
     chain[joined[i[ok & grazing]]] = True
     return joined[piece], chain[joined[piece]]
+
+
+def in_short_piece(cells: Cells, label: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """(C,) True for the candidate cells in no piece (``label`` (C,) -1) or in one shorter than
+    ``min_length_m``: the cells no wall can be made of as they are."""
+    out = label < 0
+    members = np.flatnonzero(~out)
+    if len(members):
+        _, piece = _labels(label[members])
+        _, _, _, _, a, b, _ = _piece_ends(cells, members, piece, int(piece.max()) + 1)
+        out[members] = np.hypot(*(b - a).T)[piece] < config.min_length_m
+    return out
+
+
+def corner_cells(cells: Cells, label: np.ndarray, stray: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """(C,) piece ``label`` (-1 = none) with the ``stray`` cells ((C,) bool) beside a corner given to the
+    piece whose end they continue.
+
+    A stray cell (in no piece of ``label``) joins the piece whose end is nearest among those within
+    ``link_radius_m`` of it that it lies beyond, within ``line_tolerance_m`` of that piece's line, when
+    a cell of another piece crossing that line at ``CORNER_MIN_DEG`` or more lies within
+    ``link_radius_m`` of it. One pass: a piece grows by at most ``link_radius_m`` at an end, and no two
+    pieces are joined through a stray cell.
+
+    Why: a cell next to a corner has the other face's cells among its neighbours, denser when that
+    face is seen head-on; they can outvote the wall's direction in ``link_cells``, so the cell gets no
+    line or one that is not linked to the wall, and the wall stops up to three cells short of its
+    corner, or not, as the grid (fixed to the sensor) happens to cut the corner.
+    """
+    members = np.flatnonzero(label >= 0)
+    stray_idx = np.flatnonzero(stray & (label < 0))
+    if len(members) == 0 or len(stray_idx) == 0:
+        return label
+    from scipy.spatial import cKDTree
+
+    piece_label, piece = _labels(label[members])
+    n = len(piece_label)
+    mean, direction, _, _, a, b, along_m = _piece_ends(cells, members, piece, n)
+    t_min = np.full(n, np.inf)
+    t_max = np.full(n, -np.inf)
+    np.minimum.at(t_min, piece, along_m)
+    np.maximum.at(t_max, piece, along_m)
+    ends = np.concatenate([a, b])
+    # (stray, piece end) within link_radius_m, the stray beyond that end and on the piece's line
+    near = cKDTree(ends).query_ball_point(cells.centroid[stray_idx], config.link_radius_m)
+    k = np.repeat(np.arange(len(stray_idx)), [len(x) for x in near])
+    if len(k) == 0:
+        return label
+    e = np.concatenate([np.asarray(x, np.int64) for x in near])
+    pc = e % n
+    rel = cells.centroid[stray_idx[k]] - mean[pc]
+    along = (rel * direction[pc]).sum(1)
+    offset = np.abs(rel[:, 0] * direction[pc, 1] - rel[:, 1] * direction[pc, 0])
+    ok = ((along < t_min[pc]) | (along > t_max[pc])) & (offset <= config.line_tolerance_m)
+    k, e, pc = k[ok], e[ok], pc[ok]
+    order = np.lexsort((np.hypot(*(cells.centroid[stray_idx[k]] - ends[e]).T), k))
+    k, pc = k[order], pc[order]
+    first = np.ones(len(k), bool)
+    first[1:] = k[1:] != k[:-1]
+    take, into = stray_idx[k[first]], pc[first]
+    if len(take) == 0:
+        return label
+    # ... beside a cell of a piece that crosses that line at a corner
+    near = cKDTree(cells.centroid[members]).query_ball_point(cells.centroid[take], config.link_radius_m)
+    t = np.repeat(np.arange(len(take)), [len(x) for x in near])
+    other = piece[np.concatenate([np.asarray(x, np.int64) for x in near])] if len(t) else np.zeros(0, np.int64)
+    crossing = np.abs((direction[other] * direction[into[t]]).sum(1)) <= np.cos(np.deg2rad(CORNER_MIN_DEG))
+    beside = np.zeros(len(take), bool)
+    beside[t[crossing]] = True
+    out = label.copy()
+    out[take[beside]] = piece_label[into[beside]]
+    return out
 
 
 # --- levelling ----------------------------------------------------------------------------------------
@@ -1505,7 +1582,7 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
     clock.lap("lines")
     label, chain = cell_pieces(cells, group, config)
     clock.lap("pieces")
-    label = tall_pieces(cells, label, config)
+    label = corner_cells(cells, tall_pieces(cells, label, config), in_short_piece(cells, label, config), config)
     lean = config.max_lean_deg if R is not None else None
     result = wall_segments(piece_measures(xyz, height, cells, label, config, lean, chain), config, step)
     result = replace(result, support_points=cells.centroid)
@@ -1516,4 +1593,4 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
 
 
 EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,
-                      extract=extract_vertical_structure, version=6)
+                      extract=extract_vertical_structure, version=7)
