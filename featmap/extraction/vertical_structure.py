@@ -47,10 +47,12 @@ wall's points away. One pass, no randomness:
    ``max_gap_m``; pieces on one line with ends less than ``merge_gap_m`` apart are joined, and so
    are single columns of returns one azimuth step apart in line (a far wall seen at grazing
    incidence by a tilted sensor: each column a slanted streak a metre long, the next metres farther,
-   and no cell of it a metre high, so the columns' cells are never linked). Pieces that pass the
-   height tests take back the cells beside a corner that were left out of every piece of a wall's
-   length (:func:`corner_cells`): there the other face's denser cells can outvote them for their
-   direction, and how the grid cuts the corner decides it.
+   and no cell of it a metre high, so the columns' cells are never linked). The pieces that pass
+   every test but the final per-point ones (see 7) take back the cells beside a corner that are in
+   no piece at least ``min_length_m`` long, when they lie beyond a piece's end (within
+   ``link_radius_m``) on its line (within ``line_tolerance_m``): there the other face's denser cells
+   can outvote them for their direction, and how the grid cuts the corner decides it
+   (:func:`rejoin_corner_cells`).
 7. **Walls**: a piece is a wall when it has ``min_points`` returns, ``min_length_m`` of length,
    ``max_rms_m`` of spread about its line at most, ``min_core_fraction`` of them close to their
    column's median offset and little seen through it (``max_behind``), is not seen edge-on
@@ -191,7 +193,7 @@ this share of its columns (else over all its columns)."""
 SEEN_OVER_M = 0.5
 """A return this much farther away than a structure, and higher, was seen over it (metres)."""
 CORNER_MIN_DEG = 45.0
-"""Two pieces whose lines cross at least this steeply meet at a corner (degrees): see :func:`corner_cells`."""
+"""Two pieces whose directions differ at least this much meet at a corner (degrees): see :func:`rejoin_corner_cells`."""
 
 
 # --- stage 0: input -------------------------------------------------------------------------------------
@@ -711,9 +713,9 @@ def merge_collinear(cells: Cells, members: np.ndarray, piece: np.ndarray,
     return joined[piece], chain[joined[piece]]
 
 
-def in_short_piece(cells: Cells, label: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+def stray_cells(cells: Cells, label: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
     """(C,) True for the candidate cells in no piece (``label`` (C,) -1) or in one shorter than
-    ``min_length_m``: the cells no wall can be made of as they are."""
+    ``min_length_m``: the cells no wall is made of as they are."""
     out = label < 0
     members = np.flatnonzero(~out)
     if len(members):
@@ -723,20 +725,24 @@ def in_short_piece(cells: Cells, label: np.ndarray, config: VerticalStructureCon
     return out
 
 
-def corner_cells(cells: Cells, label: np.ndarray, stray: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
-    """(C,) piece ``label`` (-1 = none) with the ``stray`` cells ((C,) bool) beside a corner given to the
-    piece whose end they continue.
+def rejoin_corner_cells(cells: Cells, label: np.ndarray, stray: np.ndarray,
+                        config: VerticalStructureConfig) -> np.ndarray:
+    """(C,) piece labels: ``label`` ((C,) values >= 0 as the caller numbers its pieces, -1 = none) with
+    the ``stray`` cells ((C,) bool; only those at -1 in ``label``) beside a corner given to the piece
+    whose end they continue. ``label`` itself is returned when no cell changes.
 
-    A stray cell (in no piece of ``label``) joins the piece whose end is nearest among those within
-    ``link_radius_m`` of it that it lies beyond, within ``line_tolerance_m`` of that piece's line, when
-    a cell of another piece crossing that line at ``CORNER_MIN_DEG`` or more lies within
-    ``link_radius_m`` of it. One pass: a piece grows by at most ``link_radius_m`` at an end, and no two
-    pieces are joined through a stray cell.
+    A stray cell joins the piece with the nearest end among those that lie within ``link_radius_m`` of
+    it, when it lies outside that piece's extent along its line and within ``line_tolerance_m`` of the
+    line, and a cell of another piece whose direction differs from that line's by ``CORNER_MIN_DEG`` or
+    more lies within ``link_radius_m`` of it (the other face of a corner; it need not reach the line).
+    One pass: a piece grows by at most ``link_radius_m`` at an end, and no two pieces are joined
+    through a stray cell. When both faces of a corner have lost their corner cells, neither gets them
+    back (the face seen head-on is the one whose cells outvote, and it keeps its own).
 
     Why: a cell next to a corner has the other face's cells among its neighbours, denser when that
     face is seen head-on; they can outvote the wall's direction in ``link_cells``, so the cell gets no
-    line or one that is not linked to the wall, and the wall stops up to three cells short of its
-    corner, or not, as the grid (fixed to the sensor) happens to cut the corner.
+    line or one not linked to the wall, and the wall stops up to three cells short of its corner, or
+    not, as the grid (fixed to the sensor) happens to cut the corner.
     """
     members = np.flatnonzero(label >= 0)
     stray_idx = np.flatnonzero(stray & (label < 0))
@@ -746,38 +752,38 @@ def corner_cells(cells: Cells, label: np.ndarray, stray: np.ndarray, config: Ver
 
     piece_label, piece = _labels(label[members])
     n = len(piece_label)
-    mean, direction, _, _, a, b, along_m = _piece_ends(cells, members, piece, n)
-    t_min = np.full(n, np.inf)
-    t_max = np.full(n, -np.inf)
-    np.minimum.at(t_min, piece, along_m)
-    np.maximum.at(t_max, piece, along_m)
+    mean, direction, _, _, a, b, _ = _piece_ends(cells, members, piece, n)
+    t_a, t_b = ((a - mean) * direction).sum(1), ((b - mean) * direction).sum(1)     # t_a <= t_b
     ends = np.concatenate([a, b])
-    # (stray, piece end) within link_radius_m, the stray beyond that end and on the piece's line
-    near = cKDTree(ends).query_ball_point(cells.centroid[stray_idx], config.link_radius_m)
-    k = np.repeat(np.arange(len(stray_idx)), [len(x) for x in near])
+    # (stray, piece end) pairs within link_radius_m whose stray lies outside the piece, on its line
+    ends_near = cKDTree(ends).query_ball_point(cells.centroid[stray_idx], config.link_radius_m)
+    k = np.repeat(np.arange(len(stray_idx)), [len(x) for x in ends_near])
     if len(k) == 0:
         return label
-    e = np.concatenate([np.asarray(x, np.int64) for x in near])
-    pc = e % n
-    rel = cells.centroid[stray_idx[k]] - mean[pc]
-    along = (rel * direction[pc]).sum(1)
-    offset = np.abs(rel[:, 0] * direction[pc, 1] - rel[:, 1] * direction[pc, 0])
-    ok = ((along < t_min[pc]) | (along > t_max[pc])) & (offset <= config.line_tolerance_m)
-    k, e, pc = k[ok], e[ok], pc[ok]
-    order = np.lexsort((np.hypot(*(cells.centroid[stray_idx[k]] - ends[e]).T), k))
-    k, pc = k[order], pc[order]
+    end = np.concatenate([np.asarray(x, np.int64) for x in ends_near])
+    target = end % n
+    rel = cells.centroid[stray_idx[k]] - mean[target]
+    along = (rel * direction[target]).sum(1)
+    offset = np.abs(rel[:, 0] * direction[target, 1] - rel[:, 1] * direction[target, 0])
+    ok = ((along < t_a[target]) | (along > t_b[target])) & (offset <= config.line_tolerance_m)
+    k, end, target = k[ok], end[ok], target[ok]
+    if len(k) == 0:
+        return label
+    # each stray cell's nearest end
+    order = np.lexsort((np.hypot(*(cells.centroid[stray_idx[k]] - ends[end]).T), k))
+    k, target = k[order], target[order]
     first = np.ones(len(k), bool)
     first[1:] = k[1:] != k[:-1]
-    take, into = stray_idx[k[first]], pc[first]
-    if len(take) == 0:
-        return label
-    # ... beside a cell of a piece that crosses that line at a corner
-    near = cKDTree(cells.centroid[members]).query_ball_point(cells.centroid[take], config.link_radius_m)
-    t = np.repeat(np.arange(len(take)), [len(x) for x in near])
-    other = piece[np.concatenate([np.asarray(x, np.int64) for x in near])] if len(t) else np.zeros(0, np.int64)
-    crossing = np.abs((direction[other] * direction[into[t]]).sum(1)) <= np.cos(np.deg2rad(CORNER_MIN_DEG))
+    take, into = stray_idx[k[first]], target[first]
+    # ... when a cell of a piece at a corner to that line lies within link_radius_m of it
+    cells_near = cKDTree(cells.centroid[members]).query_ball_point(cells.centroid[take], config.link_radius_m)
+    pair_of = np.repeat(np.arange(len(take)), [len(x) for x in cells_near])
+    other = piece[np.concatenate([np.asarray(x, np.int64) for x in cells_near])]
+    at_corner = np.abs((direction[other] * direction[into[pair_of]]).sum(1)) <= np.cos(np.deg2rad(CORNER_MIN_DEG))
     beside = np.zeros(len(take), bool)
-    beside[t[crossing]] = True
+    beside[pair_of[at_corner]] = True
+    if not beside.any():
+        return label
     out = label.copy()
     out[take[beside]] = piece_label[into[beside]]
     return out
@@ -1582,7 +1588,10 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
     clock.lap("lines")
     label, chain = cell_pieces(cells, group, config)
     clock.lap("pieces")
-    label = corner_cells(cells, tall_pieces(cells, label, config), in_short_piece(cells, label, config), config)
+    stray = stray_cells(cells, label, config)
+    label = tall_pieces(cells, label, config)
+    chain &= label >= 0                  # (a rejoined stray cell from a chain of columns does not make its new piece one)
+    label = rejoin_corner_cells(cells, label, stray, config)
     lean = config.max_lean_deg if R is not None else None
     result = wall_segments(piece_measures(xyz, height, cells, label, config, lean, chain), config, step)
     result = replace(result, support_points=cells.centroid)

@@ -181,8 +181,9 @@ def test_a_crown_over_a_fence_lifts_its_cell_only_without_the_column_gap_rule():
 
 
 def _wall_cells(centroids: np.ndarray, along_x: np.ndarray):
-    """Cells (C,) at ``centroids`` (C, 2) of 10 returns each, spread 15 cm along x or along y (``along_x``
-    (C,) bool) and 2 cm across; only what ``corner_cells`` and ``in_short_piece`` read is filled in."""
+    """Cells (C,) at ``centroids`` (C, 2) of 10 returns each, spread evenly over 15 cm along x or along y
+    (``along_x`` (C,) bool) and with a 2 cm standard deviation across; only what
+    ``rejoin_corner_cells`` and ``stray_cells`` read is filled in."""
     from featmap.extraction.vertical_structure import Cells
 
     n = len(centroids)
@@ -194,55 +195,66 @@ def _wall_cells(centroids: np.ndarray, along_x: np.ndarray):
                  hidden_above=np.zeros(n, bool), grid_keys=empty, grid_counts=empty, grid_origin=(0.0, 0.0))
 
 
-def _corner(stray_xy, with_side_wall=True):
-    """A wall along y = 0 from x = 0.45 to 6 (piece 0) and, optionally, its corner's other face along
-    x = 0 from y = 0.1 to 5 (piece 1), 15 cm cells; plus stray cells at ``stray_xy`` (K, 2)."""
-    front = np.column_stack([np.arange(0.45, 6.0, 0.15), np.zeros(37)])
-    side = np.column_stack([np.zeros(33), np.arange(0.1, 5.0, 0.15)]) if with_side_wall else np.zeros((0, 2))
+FRONT, SIDE = 3, 7
+"""The labels of the two faces in ``_corner`` (labels with gaps, as ``tall_pieces`` leaves them)."""
+
+
+def _corner(stray_xy, with_side_wall=True, side_x=0.0):
+    """A wall along y = 0 with cells from x = 0.45 to 5.85 (label FRONT) and, optionally, its corner's
+    other face along x = ``side_x`` with cells from y = 0.1 to 4.9 (label SIDE), 15 cm cells; plus
+    stray cells at ``stray_xy`` (K, 2), label -1."""
+    front_x = np.arange(0.45, 5.9, 0.15)
+    side_y = np.arange(0.1, 4.95, 0.15) if with_side_wall else np.zeros(0)
+    front = np.column_stack([front_x, np.zeros(len(front_x))])
+    side = np.column_stack([np.full(len(side_y), side_x), side_y])
     stray_xy = np.asarray(stray_xy, float).reshape(-1, 2)
     centroids = np.concatenate([front, side, stray_xy])
-    label = np.concatenate([np.zeros(len(front), int), np.ones(len(side), int), np.full(len(stray_xy), -1)])
+    label = np.concatenate([np.full(len(front), FRONT), np.full(len(side), SIDE), np.full(len(stray_xy), -1)])
     along_x = np.concatenate([np.ones(len(front), bool), np.zeros(len(side), bool), np.ones(len(stray_xy), bool)])
     return _wall_cells(centroids, along_x), label
 
 
 def test_cells_beside_a_corner_join_the_wall_they_continue():
-    from featmap.extraction.vertical_structure import VerticalStructureConfig, corner_cells
+    from featmap.extraction.vertical_structure import VerticalStructureConfig, rejoin_corner_cells
 
     config = VerticalStructureConfig()                    # link_radius_m 0.45, line_tolerance_m 0.08
     strays = [[0.15, 0.01], [0.3, -0.02]]                 # the wall's last two cells, left out of its piece
     cells, label = _corner(strays)
-    out = corner_cells(cells, label, label < 0, config)
-    assert out[-2:].tolist() == [0, 0]                    # the wall now reaches its corner
+    out = rejoin_corner_cells(cells, label, label < 0, config)
+    assert out[-2:].tolist() == [FRONT, FRONT]            # the wall now reaches its corner
     assert np.array_equal(out[:-2], label[:-2])           # nothing else changes
     # not beside a corner (no other face): they stay out, as a stray piece of hedge beyond a wall's end would
     cells, label = _corner(strays, with_side_wall=False)
-    assert corner_cells(cells, label, label < 0, config)[-2:].tolist() == [-1, -1]
+    assert rejoin_corner_cells(cells, label, label < 0, config)[-2:].tolist() == [-1, -1]
     # off the wall's line (0.15 m > line_tolerance_m), or only cells the caller did not call stray
     cells, label = _corner([[0.3, 0.15]])
-    assert corner_cells(cells, label, label < 0, config)[-1] == -1
+    assert rejoin_corner_cells(cells, label, label < 0, config)[-1] == -1
     cells, label = _corner(strays)
-    assert corner_cells(cells, label, np.zeros(len(label), bool), config)[-2:].tolist() == [-1, -1]
+    assert rejoin_corner_cells(cells, label, np.zeros(len(label), bool), config)[-2:].tolist() == [-1, -1]
 
 
 def test_a_stray_cell_joins_only_the_piece_whose_end_it_continues():
-    from featmap.extraction.vertical_structure import VerticalStructureConfig, corner_cells
+    from featmap.extraction.vertical_structure import VerticalStructureConfig, rejoin_corner_cells
 
     config = VerticalStructureConfig()
-    # inside the wall's extent (a gap in it, not beyond its end) and farther than link_radius_m from its end
-    cells, label = _corner([[3.0, 0.02], [-0.05, -0.6]])
-    assert corner_cells(cells, label, label < 0, config)[-2:].tolist() == [-1, -1]
+    # within the wall's extent (a gap in it, 7 cm from its end at x = 0.45) beside a face at x = 0.1: not
+    # beyond the end, so it stays out
+    cells, label = _corner([[0.52, 0.03]], side_x=0.1)
+    assert rejoin_corner_cells(cells, label, label < 0, config)[-1] == -1
+    # farther than link_radius_m from every end
+    cells, label = _corner([[-0.05, -0.6]])
+    assert rejoin_corner_cells(cells, label, label < 0, config)[-1] == -1
     # on both lines, beyond both ends: it goes to the nearer end (the side face's, 0.13 m; the front's 0.40 m)
     cells, label = _corner([[0.05, -0.02]])
-    assert corner_cells(cells, label, label < 0, config)[-1] == 1
+    assert rejoin_corner_cells(cells, label, label < 0, config)[-1] == SIDE
 
 
 def test_short_pieces_and_cells_in_no_piece_are_stray():
-    from featmap.extraction.vertical_structure import VerticalStructureConfig, in_short_piece
+    from featmap.extraction.vertical_structure import VerticalStructureConfig, stray_cells
 
     cells, label = _corner([[0.15, 0.0], [0.3, 0.0]])
     label[-2:] = 2                                        # a two-cell piece, 0.15 m long
     label[0] = -1
-    stray = in_short_piece(cells, label, VerticalStructureConfig())
+    stray = stray_cells(cells, label, VerticalStructureConfig())
     assert stray[-2:].all() and stray[0] and not stray[1:-2].any()
-    assert in_short_piece(cells, label, VerticalStructureConfig(min_length_m=0.1))[-2:].tolist() == [False, False]
+    assert stray_cells(cells, label, VerticalStructureConfig(min_length_m=0.1))[-2:].tolist() == [False, False]

@@ -224,7 +224,7 @@ def test_any_yaw_gives_the_same_street(deg):
 # left the wall (15, 6)-(27, 6) 0.41-0.44 m short of its corner, or (24, -14)-(38, -14) 0.37 m short: the
 # cells next to the corner lost their direction vote in link_cells to the other face's denser cells and
 # fell out of the wall's piece, as the grid (fixed to the sensor's axes) happened to cut the corner.
-# corner_cells gives them back; a 0.01 deg scan of 0-90 deg finds no such yaw since.
+# rejoin_corner_cells gives them back; a 0.01 deg scan of 0-90 deg finds no such yaw since.
 @pytest.mark.parametrize("deg", [10.09, 37.35, 59.62, 59.92, 60.14, 60.84, 64.93, 68.79, 68.82, 190.09375])
 def test_a_yaw_at_a_corner_cell_boundary_keeps_the_wall_end(deg):
     scan, _ = scene("street")
