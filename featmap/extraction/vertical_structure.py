@@ -35,9 +35,10 @@ wall's points away. One pass, no randomness:
    HDL-64: closer, a van stops it too).
 5. **Lines of cells**: every candidate cell votes, with its neighbours (within ``link_radius_m``,
    or within ``link_azimuth_steps`` of the scan's azimuth steps and ``link_radial_m`` as seen from the
-   sensor, which reaches the sparse samples of far walls; or, for two columns of returns one
-   azimuth step apart, ranges as on a wall seen up to ``link_grazing_deg`` from head-on: far walls
-   along the street, whose columns lie metres apart), for its dominant direction; two cells are
+   sensor (an ellipse in azimuth and range), which reaches the sparse samples of far walls; or, for
+   two columns of returns one azimuth step apart outside that ellipse, ranges as on a wall seen up to
+   ``link_grazing_deg`` from head-on: far walls along the street, whose columns lie metres apart),
+   for its dominant direction; two cells are
    linked when both have a line through them, the lines agree within ``link_angle_deg`` and each
    cell lies within ``line_tolerance_m`` of the other's line. Connected cells form a line piece, so
    a hedge, a car or a tree next to a wall does not bend it, and walls meeting at a corner stay
@@ -438,11 +439,12 @@ def neighbour_pairs(centroids: np.ndarray, config: VerticalStructureConfig,
                     columns: np.ndarray | None = None) -> np.ndarray:
     """(P, 2) index pairs i < j of neighbouring cells (C, 2): closer than ``link_radius_m``, or seen
     within ``link_azimuth_deg`` of each other from the sensor and less than ``link_radial_m`` apart in
-    range. The second kind links the samples of far walls and of walls seen at grazing incidence,
-    which lie a few azimuth steps apart but can be metres apart on the ground. Two ``columns``
-    ((C,) bool: cells whose returns stand at least ``link_column_m`` high) one azimuth step apart are
-    also neighbours when their ranges differ as on a wall seen up to ``link_grazing_deg`` from
-    head-on (a far wall along the street: one column of returns per azimuth step, metres apart).
+    range (together: an ellipse, ``_sensor_view``). The second kind links the samples of far walls
+    and of walls seen at grazing incidence, which lie a few azimuth steps apart but can be metres
+    apart on the ground. Two ``columns`` ((C,) bool: cells whose returns stand at least
+    ``link_column_m`` high) one azimuth step apart and outside that ellipse are also neighbours when
+    their ranges differ as on a wall seen up to ``link_grazing_deg`` from head-on (a far wall along
+    the street: one column of returns per azimuth step, metres apart).
     """
     return _close_pairs(centroids, config.link_radius_m, config, columns)
 
@@ -455,19 +457,27 @@ def _close_pairs(points: np.ndarray, radius: float, config: VerticalStructureCon
     from scipy.spatial import cKDTree
 
     near = cKDTree(points).query_pairs(radius, output_type="ndarray")
-    # Azimuth as a point on a circle of radius 1 / (azimuth scale): chord ~ angle for small angles.
-    rng = np.hypot(points[:, 0], points[:, 1])
-    unit = points / np.maximum(rng, 1e-9)[:, None] / np.deg2rad(config.link_azimuth_deg)
-    angular = cKDTree(np.column_stack([unit, rng / config.link_radial_m])).query_pairs(1.0, output_type="ndarray")
+    angular = cKDTree(_sensor_view(points, config)).query_pairs(1.0, output_type="ndarray")
     parts = [near, angular[np.hypot(*(points[angular[:, 0]] - points[angular[:, 1]]).T) > radius]]
     if columns is not None:
         parts.append(_grazing_pairs(points, columns, config))
     return np.concatenate(parts).astype(np.int64).reshape(-1, 2)
 
 
+def _sensor_view(points: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """(K, 3) the (K, 2) points as seen from the sensor, scaled so that two points are close in
+    azimuth and range (within ``link_azimuth_deg`` and ``link_radial_m``, an ellipse) when their
+    distance is at most 1: the azimuth as a point on a circle of radius 1 / ``link_azimuth_deg``
+    (chord ~ angle for small angles) and the range over ``link_radial_m``."""
+    rng = np.hypot(points[:, 0], points[:, 1])
+    unit = points / np.maximum(rng, 1e-9)[:, None] / np.deg2rad(config.link_azimuth_deg)
+    return np.column_stack([unit, rng / config.link_radial_m])
+
+
 def _grazing_pairs(points: np.ndarray, columns: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
-    """(P, 2) index pairs of ``columns`` ((K,) bool) among (K, 2) points one azimuth step apart whose ranges
-    differ by more than ``link_radial_m`` and as on a wall seen up to ``link_grazing_deg`` from head-on."""
+    """(P, 2) index pairs of ``columns`` ((K,) bool) among (K, 2) points one azimuth step apart that are not
+    close in azimuth and range (see ``_sensor_view``) and whose ranges differ as on a wall seen up to
+    ``link_grazing_deg`` from head-on."""
     if columns.sum() < 2 or config.link_grazing_deg <= 0 or config.link_azimuth_steps <= 0:
         return np.zeros((0, 2), np.int64)
     from scipy.spatial import cKDTree
@@ -485,7 +495,11 @@ def _grazing_pairs(points: np.ndarray, columns: np.ndarray, config: VerticalStru
     i, j = graze[:, 0], graze[:, 1]
     dphi = _azimuth_gap(points[i], points[j])
     dr = np.abs(rng[i] - rng[j])
-    keep = (dphi <= 1.5 * step) & (dr > config.link_radial_m) & (dr <= np.minimum(rng[i], rng[j]) * dphi * tan)
+    # (Pairs within the azimuth-and-range ellipse are the other rule's; a range difference just below
+    # link_radial_m one step apart lies outside it, and is this rule's.)
+    view = _sensor_view(points, config)
+    apart = np.hypot.reduce(view[i] - view[j], axis=1) > 1.0
+    keep = (dphi <= 1.5 * step) & apart & (dr <= np.minimum(rng[i], rng[j]) * dphi * tan)
     if config.link_grazing_max_m > 0:
         keep &= dr <= config.link_grazing_max_m
     return graze[keep]
@@ -1602,4 +1616,4 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
 
 
 EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,
-                      extract=extract_vertical_structure, version=7)
+                      extract=extract_vertical_structure, version=8)

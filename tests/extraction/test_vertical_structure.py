@@ -520,3 +520,20 @@ def test_grazing_links_can_be_capped_in_range():
     assert _grazing_pairs(points, columns, config).tolist() == [[0, 1]]
     assert len(_grazing_pairs(points, columns, config.model_copy(update={"link_grazing_max_m": 8.0}))) == 0
     assert _grazing_pairs(points, columns, config.model_copy(update={"link_grazing_max_m": 12.0})).tolist() == [[0, 1]]
+
+
+@pytest.mark.parametrize("range_step", [1.0, 1.8, 1.95, 1.99, 2.5, 4.0])
+def test_two_columns_one_azimuth_step_apart_on_a_grazing_wall_are_neighbours_once(range_step):
+    """Columns of a far wall seen ~84 deg from head-on lie one azimuth step apart and about 2 m apart
+    in range: neighbours whether that is just below link_radial_m (2 m; outside the azimuth-and-range
+    ellipse one step apart, so the grazing rule's: world 16's wall 134 was cut there) or above it, and
+    listed once (a pair counted twice would weigh twice in the direction vote)."""
+    from featmap.extraction.vertical_structure import neighbour_pairs
+
+    step = 0.218
+    az = np.deg2rad([-172.956, -172.956 - step])
+    rng = np.array([60.8, 60.8 + range_step])
+    points = np.column_stack([rng * np.cos(az), rng * np.sin(az)])
+    config = VerticalStructureConfig(link_azimuth_deg=3.33 * step)
+    assert neighbour_pairs(points, config, np.ones(2, bool)).tolist() == [[0, 1]]
+    assert len(neighbour_pairs(points, config, np.zeros(2, bool))) == (range_step < 1.9)  # not columns
