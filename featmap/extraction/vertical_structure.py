@@ -451,9 +451,10 @@ def neighbour_pairs(centroids: np.ndarray, config: VerticalStructureConfig,
 
 def _close_pairs(points: np.ndarray, radius: float, config: VerticalStructureConfig,
                  columns: np.ndarray | None = None) -> np.ndarray:
-    """(P, 2) index pairs i < j of (K, 2) points closer than ``radius`` or close as seen from the sensor
-    (within ``link_azimuth_deg`` in azimuth and ``link_radial_m`` in range; with ``columns`` (K,)
-    bool, also columns one azimuth step apart, see ``neighbour_pairs``)."""
+    """(P, 2) index pairs i < j of (K, 2) points at most ``radius`` apart or close as seen from the
+    sensor (inside the ellipse of ``link_azimuth_deg`` in azimuth and ``link_radial_m`` in range,
+    ``_sensor_view``; with ``columns`` (K,) bool, also columns one azimuth step apart outside it, see
+    ``neighbour_pairs``)."""
     from scipy.spatial import cKDTree
 
     near = cKDTree(points).query_pairs(radius, output_type="ndarray")

@@ -524,7 +524,7 @@ def test_grazing_links_can_be_capped_in_range():
 
 @pytest.mark.parametrize("range_step", [1.0, 1.8, 1.95, 1.99, 2.5, 4.0])
 def test_two_columns_one_azimuth_step_apart_on_a_grazing_wall_are_neighbours_once(range_step):
-    """Columns of a far wall seen ~84 deg from head-on lie one azimuth step apart and about 2 m apart
+    """Columns of a far wall seen about 83 deg from head-on lie one azimuth step apart and about 2 m apart
     in range: neighbours whether that is just below link_radial_m (2 m; outside the azimuth-and-range
     ellipse one step apart, so the grazing rule's: world 16's wall 134 was cut there) or above it, and
     listed once (a pair counted twice would weigh twice in the direction vote)."""
