@@ -498,8 +498,7 @@ def _grazing_pairs(points: np.ndarray, columns: np.ndarray, config: VerticalStru
     dr = np.abs(rng[i] - rng[j])
     # (Pairs within the azimuth-and-range ellipse are the other rule's; a range difference just below
     # link_radial_m one step apart lies outside it, and is this rule's.)
-    view = _sensor_view(points, config)
-    apart = np.hypot.reduce(view[i] - view[j], axis=1) > 1.0
+    apart = np.hypot.reduce(_sensor_view(points[i], config) - _sensor_view(points[j], config), axis=1) > 1.0
     keep = (dphi <= 1.5 * step) & apart & (dr <= np.minimum(rng[i], rng[j]) * dphi * tan)
     if config.link_grazing_max_m > 0:
         keep &= dr <= config.link_grazing_max_m
