@@ -84,6 +84,15 @@ wall's points away. One pass, no randomness:
    bounds everyone's: ``solid_rms_factor`` times it for long pieces,
    ``short_rms_factor`` for short ones (a crown's facets, a wall merged with a crown in line with
    it, are thicker than the scan's walls).
+8. **Walls hidden above** (``extend_hidden_m``): only returns ``line_min_height_m`` up place a wall,
+   so a bush or a tree crown in front of a garden wall ends it where its upper part disappears
+   behind them, though the wall goes on below. Each wall's ends move along its line over its low
+   returns (within ``inlier_tolerance_m`` of the line) whose column is hidden above: the first
+   return above the column's highest one on the line lies nearer (something in front stopped the
+   rays that would have shown the rest of the wall). A fence or a hedge in line with a wall shows
+   its top (the next ray passes over it) and is not joined. At most ``extend_hidden_m`` past an end
+   and no gap longer than ``max_gap_m``; two pieces of one wall whose ends meet this way become one
+   (:func:`extend_hidden_ends`).
 
 Numpy in, numpy out; the same scan always gives the same segments (no random sampling).
 """
@@ -166,6 +175,7 @@ class VerticalStructureConfig(Section):
     solid_rms_factor: float = Field(3.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do (their median, when there are 3; that is the sensor's noise)")
     short_max_bottom_m: float = Field(1.0, ge=0, description="a shorter piece reaches down to this height above the ground (plus one of the scan's beam spacings at its range): a tree crown floats ...")
     short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do")
+    extend_hidden_m: float = Field(3.0, ge=0, description="a wall goes on past its ends, up to this far along its line, over its low returns whose column is hidden above by something in front (a bush before a garden wall; 0 = off)")
 
 
 COLUMN_GAP_BEAMS = 3.0
@@ -1546,6 +1556,219 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
                         rms=m.rms[sel], max_gap=m.max_gap[sel])
 
 
+# --- stage 8: walls hidden above --------------------------------------------------------------------------
+
+def extend_hidden_ends(result: ScanSegments, xyz: np.ndarray, height: np.ndarray,
+                       config: VerticalStructureConfig) -> ScanSegments:
+    """``result`` with each wall's ends moved along its line over its hidden low returns.
+
+    ``xyz`` (M, 3): the non-ground returns in the frame of ``result`` (the levelled frame; sensor at
+    the origin), ``height`` (M,) above the local ground. A low return (below ``line_min_height_m``)
+    within ``inlier_tolerance_m`` of a wall's line and at most ``extend_hidden_m`` past one of its ends
+    continues the wall when its column (the returns within one of the scan's azimuth steps of its
+    own, ``link_azimuth_deg / link_azimuth_steps``) is hidden above: the first return above the
+    column's highest return on the line lies nearer than that one. An end moves to the farthest
+    such return reached from it without a gap longer than ``max_gap_m``; ``max_gap`` grows by the
+    gaps crossed. Nothing else changes.
+
+    Why: only returns ``line_min_height_m`` up place a wall, so a bush or a tree crown in front of a garden
+    wall ends it where its upper part disappears behind them, though the wall goes on below. A fence
+    or a hedge in line with a wall is not joined: its top is seen (the rays above it pass over).
+    """
+    if config.extend_hidden_m <= 0 or len(result) == 0:
+        return result
+    low = np.flatnonzero(height < config.line_min_height_m)
+    if len(low) == 0:
+        return result
+    seg = result.segments
+    length = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
+    u = (seg[:, 2:] - seg[:, :2]) / np.maximum(length, 1e-12)[:, None]
+    ends = np.concatenate([seg[:, :2], seg[:, 2:]])                        # (2K, 2): every a, then every b
+    out_dir = np.concatenate([-u, u])                                       # away from the wall
+    tol = config.inlier_tolerance_m
+    end, point = _returns_past_ends(xyz[low, :2], ends, out_dir, config.extend_hidden_m, tol)
+    point = low[point]
+    rel = xyz[point, :2] - ends[end]
+    past = (rel * out_dir[end]).sum(1)
+    offset = np.abs(rel[:, 0] * out_dir[end, 1] - rel[:, 1] * out_dir[end, 0])
+    keep = (past > 0) & (past <= config.extend_hidden_m) & (offset <= tol)
+    end, point, past = end[keep], point[keep], past[keep]
+    if len(end) == 0:
+        return result
+    hidden = _hidden_above(xyz, end, point, ends, out_dir, config)
+    end, past = end[hidden], past[hidden]
+    moved = np.zeros(len(ends))
+    crossed = np.zeros(len(ends))
+    order = np.lexsort((past, end))
+    end, past = end[order], past[order]
+    first = np.ones(len(end), bool)
+    first[1:] = end[1:] != end[:-1]
+    gap = np.where(first, past, np.diff(past, prepend=0.0))          # from the end, then return to return
+    # an end stops before its first gap longer than max_gap_m
+    wide = gap > config.max_gap_m
+    wide_so_far = np.cumsum(wide)
+    group = np.cumsum(first) - 1
+    reach = wide_so_far - (wide_so_far - wide)[first][group] == 0
+    np.maximum.at(moved, end[reach], past[reach])
+    np.maximum.at(crossed, end[reach], gap[reach])
+    if not moved.any():
+        return result
+    k = len(seg)
+    new_ends = ends + moved[:, None] * out_dir
+    max_gap = result.max_gap
+    if max_gap is not None:
+        max_gap = np.maximum(max_gap, np.maximum(crossed[:k], crossed[k:]))
+    extended = replace(result, segments=np.column_stack([new_ends[:k], new_ends[k:]]), max_gap=max_gap)
+    return _join_reached(extended, (moved[:k] > 0) | (moved[k:] > 0), config)
+
+
+def _returns_past_ends(xy: np.ndarray, ends: np.ndarray, out_dir: np.ndarray, reach: float, tol: float):
+    """(end, point) index pairs ((P,) each) of the (N, 2) points ``xy`` that may lie within ``reach`` past
+    ``ends`` (E, 2) along ``out_dir`` (E, 2) and within ``tol`` of that line: those in the grid cells
+    (of side ``reach + 2 tol``, so each end's stretch meets at most 2 x 2 of them) its stretch meets."""
+    side = reach + 2 * tol
+    cell = np.floor(xy / side).astype(np.int64)
+    far = ends + reach * out_dir
+    first = np.floor((np.minimum(ends, far) - tol) / side).astype(np.int64)
+    last = np.floor((np.maximum(ends, far) + tol) / side).astype(np.int64)
+    # every (end, cell) its stretch meets: first + (0 or 1) per axis, up to last
+    e = np.repeat(np.arange(len(ends)), 4)
+    c = np.repeat(first, 4, axis=0) + np.tile([[0, 0], [0, 1], [1, 0], [1, 1]], (len(ends), 1))
+    ok = (c <= last[e]).all(1)
+    e, c = e[ok], c[ok]
+    low = np.minimum(cell.min(0), c.min(0))
+    width = int(max(cell[:, 1].max(), c[:, 1].max()) - low[1]) + 1
+    key = (cell[:, 0] - low[0]) * width + (cell[:, 1] - low[1])
+    wanted = (c[:, 0] - low[0]) * width + (c[:, 1] - low[1])
+    table = np.zeros(int(max(key.max(), wanted.max())) + 1, bool)
+    table[wanted] = True
+    sel = np.flatnonzero(table[key])
+    sel = sel[np.argsort(key[sel], kind="stable")]
+    sorted_key = key[sel]
+    lo, hi = np.searchsorted(sorted_key, wanted, "left"), np.searchsorted(sorted_key, wanted, "right")
+    n = hi - lo
+    at = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + np.repeat(lo, n)
+    return np.repeat(e, n), sel[at]
+
+
+def _join_reached(result: ScanSegments, moved: np.ndarray, config: VerticalStructureConfig) -> ScanSegments:
+    """Join the walls of ``result`` on one line (directions within ``merge_angle_deg``, the ends of the
+    one with fewer returns within ``merge_offset_m`` of the other's line) that overlap
+    or lie within ``max_gap_m`` of each other along it, where one of them was extended (``moved`` (K,)):
+    a wall hidden above in its middle was two pieces, and their extensions meet. The joined wall lies
+    on the line of its member with the most returns, from the extreme projection of their ends;
+    returns are added, spreads and mean heights weighted by them, heights and gaps their extremes."""
+    seg = result.segments
+    k = len(seg)
+    i, j = np.triu_indices(k, 1)
+    pair = moved[i] | moved[j]
+    i, j = i[pair], j[pair]
+    if len(i) == 0:
+        return result
+    a, b = seg[:, :2], seg[:, 2:]
+    length = np.hypot(*(b - a).T)
+    u = (b - a) / np.maximum(length, 1e-12)[:, None]
+    normal = np.column_stack([-u[:, 1], u[:, 0]])
+    ok = np.abs((u[i] * u[j]).sum(1)) >= np.cos(np.deg2rad(config.merge_angle_deg))
+    # the ends of the one with fewer returns lie on the other's line
+    major = np.where(result.n_points[i] >= result.n_points[j], i, j)
+    minor = i + j - major
+    for end in (a, b):
+        ok &= np.abs(((end[minor] - a[major]) * normal[major]).sum(1)) <= config.merge_offset_m
+    # along the major's line: the gap between the two intervals
+    t_a, t_b = ((a[minor] - a[major]) * u[major]).sum(1), ((b[minor] - a[major]) * u[major]).sum(1)
+    gap = np.maximum(np.minimum(t_a, t_b) - length[major], -np.maximum(t_a, t_b))
+    ok &= gap <= config.max_gap_m
+    if not ok.any():
+        return result
+    _, group = np.unique(connected_labels(k, i[ok], j[ok]), return_inverse=True)
+    n = int(group.max()) + 1
+    weight = result.n_points.astype(float)
+    lead = np.full(n, -1)
+    order = np.lexsort((-weight, group))
+    lead[group[order[::-1]]] = order[::-1]                      # the member with the most returns
+    base, direction = a[lead[group]], u[lead[group]]
+    t = np.column_stack([((a - base) * direction).sum(1), ((b - base) * direction).sum(1)])
+    lo = np.full(n, np.inf)
+    hi = np.full(n, -np.inf)
+    np.minimum.at(lo, group, t.min(1))
+    np.maximum.at(hi, group, t.max(1))
+    start, stop = a[lead] + lo[:, None] * u[lead], a[lead] + hi[:, None] * u[lead]
+    total = np.bincount(group, weight, n)
+    safe = np.maximum(total, 1)
+
+    def extreme(values, fn, fill):
+        if values is None:
+            return None
+        out = np.full(n, fill)
+        fn.at(out, group, values)
+        return out
+
+    def weighted(values):
+        return None if values is None else np.bincount(group, weight * values, n) / safe
+
+    max_gap = extreme(result.max_gap, np.maximum, -np.inf)
+    if max_gap is not None:
+        # the joined members' own gaps, and any left between them
+        span = hi - lo
+        covered = np.bincount(group, length, n)
+        max_gap = np.maximum(max_gap, np.where(np.bincount(group, minlength=n) > 1, np.maximum(span - covered, 0), 0))
+    order = np.lexsort((start[:, 1], start[:, 0]))
+    pick = lambda x: None if x is None else x[order]
+    return replace(result, segments=np.column_stack([start, stop])[order], n_points=total.astype(np.int64)[order],
+                   rms=np.sqrt(weighted(result.rms ** 2))[order], z_mean=pick(weighted(result.z_mean)),
+                   z_min=pick(extreme(result.z_min, np.minimum, np.inf)), z_max=pick(extreme(result.z_max, np.maximum, -np.inf)),
+                   max_gap=pick(max_gap))
+
+
+def _hidden_above(xyz: np.ndarray, end: np.ndarray, point: np.ndarray, ends: np.ndarray, out_dir: np.ndarray,
+                  config: VerticalStructureConfig) -> np.ndarray:
+    """(P,) True where the column of low return ``point`` (P,) (indices into ``xyz`` (M, 3)), on the
+    line through ``ends[end]`` along ``out_dir[end]`` ((E, 2) each), is hidden above: among the
+    returns within one azimuth step of it, the first one above the highest on that line is nearer
+    than that one. Columns are shared: each (line, azimuth bin) is judged once."""
+    step = np.deg2rad(_configured_step_deg(config) or config.link_azimuth_deg)
+    col = np.floor(np.arctan2(xyz[:, 1], xyz[:, 0]) / step).astype(np.int64)
+    col -= col.min() - 1                                     # >= 1, so bin - 1 is a valid index
+    # the returns of the bins next to a tested one, by bin; their range and elevation
+    wanted = np.zeros(int(col.max()) + 2, bool)
+    wanted[col[point] - 1], wanted[col[point]], wanted[col[point] + 1] = True, True, True
+    near = np.flatnonzero(wanted[col])
+    near = near[np.argsort(col[near], kind="stable")]
+    sorted_col = col[near]
+    rng_near = np.hypot(xyz[near, 0], xyz[near, 1])
+    elevation_near = np.arctan2(xyz[near, 2], rng_near)
+    # one test per (line, bin); its column: the returns in bins bin-1 .. bin+1
+    key = end * (int(col.max()) + 2) + col[point]
+    unique, inverse = np.unique(key, return_inverse=True)
+    first_of = np.zeros(len(unique), np.int64)
+    first_of[inverse[::-1]] = np.arange(len(point))[::-1]
+    u_end = end[first_of]
+    u_bin = col[point[first_of]]
+    lo = np.searchsorted(sorted_col, u_bin - 1, side="left")
+    hi = np.searchsorted(sorted_col, u_bin + 1, side="right")
+    n = hi - lo
+    test = np.repeat(np.arange(len(unique)), n)
+    at = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + np.repeat(lo, n)
+    idx = near[at]
+    rel = xyz[idx, :2] - ends[u_end[test]]
+    d = out_dir[u_end[test]]
+    on = np.abs(rel[:, 0] * d[:, 1] - rel[:, 1] * d[:, 0]) <= config.inlier_tolerance_m
+    rng, elevation = rng_near[at], elevation_near[at]
+    top = np.full(len(unique), -np.inf)
+    np.maximum.at(top, test[on], elevation[on])
+    top_range = np.full(len(unique), np.nan)
+    at_top = on & (elevation == top[test])
+    top_range[test[at_top]] = rng[at_top]
+    above = elevation > top[test]
+    next_up = np.full(len(unique), np.inf)
+    np.minimum.at(next_up, test[above], elevation[above])
+    first_above = above & (elevation == next_up[test])
+    front = np.zeros(len(unique), bool)
+    front[test[first_above]] = rng[first_above] < top_range[test[first_above]] - config.inlier_tolerance_m
+    return front[inverse]
+
+
 # --- the extractor --------------------------------------------------------------------------------------
 
 def extract_vertical_structure(points, config: VerticalStructureConfig = VerticalStructureConfig(),
@@ -1608,6 +1831,7 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
     label = rejoin_corner_cells(cells, label, stray, config)
     lean = config.max_lean_deg if R is not None else None
     result = wall_segments(piece_measures(xyz, height, cells, label, config, lean, chain), config, step)
+    result = extend_hidden_ends(result, xyz, height, config)
     result = replace(result, support_points=cells.centroid)
     if R is not None:
         result = unlevel_segments(result, R)
@@ -1616,4 +1840,4 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
 
 
 EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,
-                      extract=extract_vertical_structure, version=8)
+                      extract=extract_vertical_structure, version=9)

@@ -537,3 +537,82 @@ def test_two_columns_one_azimuth_step_apart_on_a_grazing_wall_are_neighbours_onc
     config = VerticalStructureConfig(link_azimuth_deg=3.33 * step)
     assert neighbour_pairs(points, config, np.ones(2, bool)).tolist() == [[0, 1]]
     assert len(neighbour_pairs(points, config, np.zeros(2, bool))) == (range_step < 1.9)  # not columns
+
+
+def test_a_garden_wall_behind_a_bush_goes_on_under_it():
+    """A 2.2 m garden wall 15 m to the right, 10-35 m ahead; a bush (a crown on a short stem) 1-3 m in
+    front of its western end hides it above 0.8 m for 4 m. Only returns 1 m up place a wall, so it came
+    out in two pieces with the hidden stretch between them; its low returns there, whose rays above are
+    stopped by the bush, carry it on (extend_hidden_m): one segment within 5 cm of the wall, end to end.
+    A 1 m fence in line with it beyond its far end shows its top and is not joined."""
+    bush = {"kind": "tree", "position": [12.0, -13.3], "trunk_height": 0.8, "trunk_radius": 0.1, "crown_radius": 1.4}
+    fence = {"kind": "fence", "line": [[35, -15.0], [38, -15.0]], "height": 1.0}
+    scan = cast_scan([building(10, -15.3, 35, -15.0, 2.2), fence, bush])
+    result = extract_vertical_structure(scan)
+    assert len(result) == 1
+    seg = result.segments[0]
+    assert on_line(seg, [10, -15], [35, -15], 0.05)
+    assert sorted(seg[[0, 2]]) == pytest.approx([10, 35], abs=0.2)
+    pieces = extract_vertical_structure(scan, VerticalStructureConfig(extend_hidden_m=0))
+    assert len(pieces) == 2 and all(on_line(s, [10, -15], [35, -15], 0.05) for s in pieces.segments)
+    assert pieces.segments[:, [0, 2]].max(1).min() < 12.5 and pieces.segments[:, [0, 2]].min(1).max() > 15
+
+
+def _wall_with_low_returns(occluded: bool, fence_top: bool = False, gap_at: float | None = None):
+    """A wall piece (5, 10)-(10, 10) and low returns on its line at x = 4.9 .. 2.0 every 0.1 m (0.5 m above
+    a flat ground 1.73 m below the sensor); with ``occluded``, each has a return 1 m higher straight
+    above its ray 20 % nearer (a bush in front); with ``fence_top``, a return 0.4 m higher on the line
+    itself and one beyond it on the ray just above (a fence's top, seen: the next ray passes over it);
+    ``gap_at``: no low return within 0.6 m of that x."""
+    from featmap.extraction.base import ScanSegments
+
+    x = np.round(np.arange(4.9, 1.95, -0.1), 2)
+    if gap_at is not None:
+        x = x[np.abs(x - gap_at) > 0.6]
+    low = np.column_stack([x, np.full(len(x), 10.0), np.full(len(x), -1.23)])
+    points, height = [low], [np.full(len(x), 0.5)]
+    if occluded:
+        points.append(np.column_stack([0.8 * low[:, :2], 0.8 * low[:, 2] + 1.0]))
+        height.append(np.full(len(x), 1.5))
+    if fence_top:
+        points.append(low + [0, 0, 0.4])
+        points.append(np.column_stack([1.5 * low[:, :2], 1.5 * (low[:, 2] + 0.6)]))   # seen over it, beyond
+        height.append(np.full(len(x), 0.9))
+        height.append(np.full(len(x), 1.5))
+    wall = ScanSegments(segments=np.array([[5.0, 10.0, 10.0, 10.0]]), n_points=np.array([500]), rms=np.array([0.02]),
+                        z_mean=np.array([0.0]), z_min=np.array([-1.5]), z_max=np.array([1.0]), max_gap=np.array([0.1]))
+    return wall, np.concatenate(points), np.concatenate(height)
+
+
+@pytest.mark.parametrize("occluded, fence_top, gap_at, start", [
+    (True, False, None, 2.0),        # hidden above all along: 2.9 m (within extend_hidden_m = 3)
+    (False, False, None, 5.0),       # nothing in front: its top is seen, no wall goes on
+    (True, True, None, 5.0),         # a fence's top on the line is seen, the bush is higher up
+    (True, False, 3.5, 4.2),         # a 1.4 m gap in the low returns (> max_gap_m) stops it
+])
+def test_walls_go_on_only_over_low_returns_hidden_above(occluded, fence_top, gap_at, start):
+    from featmap.extraction.vertical_structure import extend_hidden_ends
+
+    wall, xyz, height = _wall_with_low_returns(occluded, fence_top, gap_at)
+    out = extend_hidden_ends(wall, xyz, height, VerticalStructureConfig())
+    assert out.segments[0].tolist() == pytest.approx([start, 10.0, 10.0, 10.0], abs=1e-9)
+    assert out.max_gap[0] == pytest.approx(0.1, abs=1e-9)    # no gap of the extension is longer
+    assert extend_hidden_ends(wall, xyz, height, VerticalStructureConfig(extend_hidden_m=0)) is wall
+
+
+def test_two_pieces_of_a_wall_whose_extensions_meet_become_one():
+    """The second piece's end reaches the first one over hidden low returns: one wall on the line of the
+    piece with more returns, over both; returns added, heights their extremes."""
+    from featmap.extraction.base import ScanSegments
+    from featmap.extraction.vertical_structure import extend_hidden_ends
+
+    wall, xyz, height = _wall_with_low_returns(True)
+    first = ScanSegments(segments=np.array([[-3.0, 10.02, 2.3, 10.0], [5.0, 10.0, 10.0, 10.0]]), n_points=np.array([100, 500]),
+                         rms=np.array([0.03, 0.02]), z_mean=np.array([0.5, 0.0]), z_min=np.array([-1.6, -1.5]),
+                         z_max=np.array([0.5, 1.0]), max_gap=np.array([0.2, 0.1]))
+    out = extend_hidden_ends(first, xyz, height, VerticalStructureConfig())
+    assert len(out) == 1
+    assert out.segments[0].tolist() == pytest.approx([-3.0, 10.0, 10.0, 10.0], abs=1e-9)
+    assert (out.n_points[0], out.z_min[0], out.z_max[0]) == (600, -1.6, 1.0)
+    assert out.rms[0] == pytest.approx(np.sqrt((100 * 0.03 ** 2 + 500 * 0.02 ** 2) / 600))
+    assert out.max_gap[0] == pytest.approx(0.2, abs=1e-9)    # the first piece's own (both went on and overlap)
