@@ -1565,11 +1565,15 @@ def extend_hidden_ends(result: ScanSegments, xyz: np.ndarray, height: np.ndarray
     ``xyz`` (M, 3): the non-ground returns in the frame of ``result`` (the levelled frame; sensor at
     the origin), ``height`` (M,) above the local ground. A low return (below ``line_min_height_m``)
     within ``inlier_tolerance_m`` of a wall's line and at most ``extend_hidden_m`` past one of its ends
-    continues the wall when its column (the returns within one of the scan's azimuth steps of its
-    own, ``link_azimuth_deg / link_azimuth_steps``) is hidden above: the first return above the
-    column's highest return on the line lies nearer than that one. An end moves to the farthest
-    such return reached from it without a gap longer than ``max_gap_m``; ``max_gap`` grows by the
-    gaps crossed. Nothing else changes.
+    continues the wall when its column (the returns in its azimuth bin and the two next to it, bins
+    one of the scan's azimuth steps wide, ``link_azimuth_deg / link_azimuth_steps``) is hidden above:
+    the first return above the column's highest return on the line lies nearer than that one by more
+    than ``inlier_tolerance_m``. An end moves to the farthest such return reached from it without a
+    gap longer than ``max_gap_m`` (returns whose column is not hidden are no stepping stones; a stretch
+    of them shorter than that is crossed); ``max_gap`` grows by the gaps crossed. Walls whose ends
+    meet are joined (:func:`_join_reached`) and the result is ordered by first endpoint again. The
+    returns' heights and number are not updated. Approximate: the bins do not wrap at +-180 deg, so
+    a column right behind the sensor is judged on one side of it only.
 
     Why: only returns ``line_min_height_m`` up place a wall, so a bush or a tree crown in front of a garden
     wall ends it where its upper part disappears behind them, though the wall goes on below. A fence
@@ -1619,7 +1623,19 @@ def extend_hidden_ends(result: ScanSegments, xyz: np.ndarray, height: np.ndarray
     if max_gap is not None:
         max_gap = np.maximum(max_gap, np.maximum(crossed[:k], crossed[k:]))
     extended = replace(result, segments=np.column_stack([new_ends[:k], new_ends[k:]]), max_gap=max_gap)
-    return _join_reached(extended, (moved[:k] > 0) | (moved[k:] > 0), config)
+    return _by_first_end(_join_reached(extended, (moved[:k] > 0) | (moved[k:] > 0), config))
+
+
+def _by_first_end(result: ScanSegments) -> ScanSegments:
+    """``result`` ordered by first endpoint (x, then y), as :func:`wall_segments` orders it."""
+    seg = result.segments
+    order = np.lexsort((seg[:, 1], seg[:, 0]))
+    if np.array_equal(order, np.arange(len(seg))):
+        return result
+    pick = lambda x: None if x is None else x[order]
+    return replace(result, segments=seg[order], n_points=result.n_points[order], rms=result.rms[order],
+                   z_mean=pick(result.z_mean), z_min=pick(result.z_min), z_max=pick(result.z_max),
+                   max_gap=pick(result.max_gap))
 
 
 def _returns_past_ends(xy: np.ndarray, ends: np.ndarray, out_dir: np.ndarray, reach: float, tol: float):
@@ -1656,8 +1672,11 @@ def _join_reached(result: ScanSegments, moved: np.ndarray, config: VerticalStruc
     one with fewer returns within ``merge_offset_m`` of the other's line) that overlap
     or lie within ``max_gap_m`` of each other along it, where one of them was extended (``moved`` (K,)):
     a wall hidden above in its middle was two pieces, and their extensions meet. The joined wall lies
-    on the line of its member with the most returns, from the extreme projection of their ends;
-    returns are added, spreads and mean heights weighted by them, heights and gaps their extremes."""
+    on the line of its member with the most returns, from the extreme projection of their ends
+    ((K, 4) segments in the frame of ``result``); returns are added, spreads and mean heights weighted by
+    them, heights their extremes, and ``max_gap`` the largest of the members' own and of the stretches
+    between them that none covers. Joined walls take the place of their first member: the order is not
+    kept (see :func:`_by_first_end`)."""
     seg = result.segments
     k = len(seg)
     i, j = np.triu_indices(k, 1)
@@ -1684,9 +1703,8 @@ def _join_reached(result: ScanSegments, moved: np.ndarray, config: VerticalStruc
     _, group = np.unique(connected_labels(k, i[ok], j[ok]), return_inverse=True)
     n = int(group.max()) + 1
     weight = result.n_points.astype(float)
-    lead = np.full(n, -1)
     order = np.lexsort((-weight, group))
-    lead[group[order[::-1]]] = order[::-1]                      # the member with the most returns
+    lead = order[np.searchsorted(group[order], np.arange(n))]    # the member with the most returns (first of ties)
     base, direction = a[lead[group]], u[lead[group]]
     t = np.column_stack([((a - base) * direction).sum(1), ((b - base) * direction).sum(1)])
     lo = np.full(n, np.inf)
@@ -1709,24 +1727,31 @@ def _join_reached(result: ScanSegments, moved: np.ndarray, config: VerticalStruc
 
     max_gap = extreme(result.max_gap, np.maximum, -np.inf)
     if max_gap is not None:
-        # the joined members' own gaps, and any left between them
-        span = hi - lo
-        covered = np.bincount(group, length, n)
-        max_gap = np.maximum(max_gap, np.where(np.bincount(group, minlength=n) > 1, np.maximum(span - covered, 0), 0))
-    order = np.lexsort((start[:, 1], start[:, 0]))
-    pick = lambda x: None if x is None else x[order]
-    return replace(result, segments=np.column_stack([start, stop])[order], n_points=total.astype(np.int64)[order],
-                   rms=np.sqrt(weighted(result.rms ** 2))[order], z_mean=pick(weighted(result.z_mean)),
-                   z_min=pick(extreme(result.z_min, np.minimum, np.inf)), z_max=pick(extreme(result.z_max, np.maximum, -np.inf)),
-                   max_gap=pick(max_gap))
+        # the joined members' own gaps, and any stretch between them that none covers
+        t_lo, t_hi = t.min(1), t.max(1)
+        along = np.lexsort((t_lo, group))
+        g, t_lo, t_hi = group[along], t_lo[along], t_hi[along]
+        first = np.ones(len(g), bool)
+        first[1:] = g[1:] != g[:-1]
+        # the farthest end reached by the members before each one, within its group
+        reached = t_hi.copy()
+        for m in np.flatnonzero(~first):        # (a few members per joined wall)
+            reached[m] = max(reached[m - 1], t_hi[m])
+        between = np.where(first, 0.0, t_lo - np.roll(reached, 1))
+        np.maximum.at(max_gap, g, np.maximum(between, 0.0))
+    return replace(result, segments=np.column_stack([start, stop]), n_points=total.astype(np.int64),
+                   rms=np.sqrt(weighted(result.rms ** 2)), z_mean=weighted(result.z_mean),
+                   z_min=extreme(result.z_min, np.minimum, np.inf), z_max=extreme(result.z_max, np.maximum, -np.inf),
+                   max_gap=max_gap)
 
 
 def _hidden_above(xyz: np.ndarray, end: np.ndarray, point: np.ndarray, ends: np.ndarray, out_dir: np.ndarray,
                   config: VerticalStructureConfig) -> np.ndarray:
     """(P,) True where the column of low return ``point`` (P,) (indices into ``xyz`` (M, 3)), on the
     line through ``ends[end]`` along ``out_dir[end]`` ((E, 2) each), is hidden above: among the
-    returns within one azimuth step of it, the first one above the highest on that line is nearer
-    than that one. Columns are shared: each (line, azimuth bin) is judged once."""
+    returns in its azimuth bin and the two next to it (bins of one azimuth step), the first one above
+    (in elevation) the highest on that line is nearer than that one by more than ``inlier_tolerance_m``.
+    Columns are shared: each (line, azimuth bin) is judged once."""
     step = np.deg2rad(_configured_step_deg(config) or config.link_azimuth_deg)
     col = np.floor(np.arctan2(xyz[:, 1], xyz[:, 0]) / step).astype(np.int64)
     col -= col.min() - 1                                     # >= 1, so bin - 1 is a valid index
@@ -1740,9 +1765,7 @@ def _hidden_above(xyz: np.ndarray, end: np.ndarray, point: np.ndarray, ends: np.
     elevation_near = np.arctan2(xyz[near, 2], rng_near)
     # one test per (line, bin); its column: the returns in bins bin-1 .. bin+1
     key = end * (int(col.max()) + 2) + col[point]
-    unique, inverse = np.unique(key, return_inverse=True)
-    first_of = np.zeros(len(unique), np.int64)
-    first_of[inverse[::-1]] = np.arange(len(point))[::-1]
+    unique, first_of, inverse = np.unique(key, return_index=True, return_inverse=True)
     u_end = end[first_of]
     u_bin = col[point[first_of]]
     lo = np.searchsorted(sorted_col, u_bin - 1, side="left")

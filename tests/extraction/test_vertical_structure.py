@@ -616,3 +616,65 @@ def test_two_pieces_of_a_wall_whose_extensions_meet_become_one():
     assert (out.n_points[0], out.z_min[0], out.z_max[0]) == (600, -1.6, 1.0)
     assert out.rms[0] == pytest.approx(np.sqrt((100 * 0.03 ** 2 + 500 * 0.02 ** 2) / 600))
     assert out.max_gap[0] == pytest.approx(0.2, abs=1e-9)    # the first piece's own (both went on and overlap)
+
+
+
+def _hidden_low_returns(xs, y: float = 10.0):
+    """Low returns at ``xs`` on the line y = ``y`` (0.5 m above a flat ground 1.73 m below the sensor),
+    each hidden above by a return 1 m higher on its ray 20 % nearer: (N, 3) points and (N,) heights."""
+    xs = np.asarray(xs, float)
+    low = np.column_stack([xs, np.full(len(xs), y), np.full(len(xs), -1.23)])
+    bush = np.column_stack([0.8 * low[:, :2], 0.8 * low[:, 2] + 1.0])
+    return np.concatenate([low, bush]), np.concatenate([np.full(len(xs), 0.5), np.full(len(xs), 1.5)])
+
+
+def _walls(segments, n_points=None):
+    """ScanSegments of (K, 4) ``segments`` with 500 returns each (or ``n_points``) and max_gap 0.1 m."""
+    from featmap.extraction.base import ScanSegments
+
+    segments = np.asarray(segments, float)
+    k = len(segments)
+    return ScanSegments(segments=segments, n_points=np.asarray(n_points if n_points is not None else [500] * k),
+                        rms=np.full(k, 0.02), z_mean=np.zeros(k), z_min=np.full(k, -1.5), z_max=np.ones(k),
+                        max_gap=np.full(k, 0.1))
+
+
+@pytest.mark.parametrize("xs, start, max_gap", [
+    ([4.0, 3.0, 2.5], 2.5, 1.0),              # gaps of exactly max_gap_m, the first from the end, are crossed ...
+    ([3.95, 3.5], 5.0, 0.1),                  # ... a longer one is not, even before the first return
+    ([4.8, 4.3, 3.8], 3.8, 0.5),              # gaps of 0.5 m: max_gap grows to them
+])
+def test_an_end_goes_on_over_gaps_up_to_max_gap_m_and_records_them(xs, start, max_gap):
+    from featmap.extraction.vertical_structure import extend_hidden_ends
+
+    xyz, height = _hidden_low_returns(xs)
+    out = extend_hidden_ends(_walls([[5.0, 10.0, 10.0, 10.0]]), xyz, height, VerticalStructureConfig())
+    assert out.segments[0].tolist() == pytest.approx([start, 10.0, 10.0, 10.0], abs=1e-9)
+    assert out.max_gap[0] == pytest.approx(max_gap, abs=1e-9)
+
+
+def test_each_end_goes_on_by_itself_and_the_walls_stay_ordered_by_first_end():
+    """Three walls, listed by first end: one that does not move (y = -20), one whose west end goes on
+    from x = 4 to 2 (y = 30; it now comes first) and a short one (y = 20) whose east end goes on over
+    three returns to 11.1 while its west end stops before a 1.2 m gap."""
+    from featmap.extraction.vertical_structure import extend_hidden_ends
+
+    xyz1, h1 = _hidden_low_returns([10.7, 10.9, 11.1, 8.8, 8.6], 20.0)
+    xyz2, h2 = _hidden_low_returns(np.arange(3.8, 1.95, -0.2), 30.0)
+    walls = _walls([[3.0, -20.0, 8.0, -20.0], [4.0, 30.0, 9.0, 30.0], [10.0, 20.0, 10.5, 20.0]])
+    out = extend_hidden_ends(walls, np.concatenate([xyz1, xyz2]), np.concatenate([h1, h2]), VerticalStructureConfig())
+    assert out.segments == pytest.approx(np.array([[2.0, 30.0, 9.0, 30.0], [3.0, -20.0, 8.0, -20.0],
+                                                   [10.0, 20.0, 11.1, 20.0]]), abs=1e-9)
+
+
+def test_three_walls_joined_over_overlaps_keep_the_gap_none_of_them_covers():
+    """On y = 10: A 0-10 m (500 returns) goes on west to -0.5, B 5-12 m overlaps it, C 12.9-20 m goes on
+    east to 21. A and B join (A moved), B and C join (0.9 m apart, C moved): one wall on A's line from
+    -0.5 to 21 whose max_gap is the 0.9 m between B and C (covered neither by A nor B)."""
+    from featmap.extraction.vertical_structure import extend_hidden_ends
+
+    xyz, height = _hidden_low_returns([-0.5, 20.5, 21.0])
+    walls = _walls([[0.0, 10.0, 10.0, 10.0], [5.0, 10.0, 12.0, 10.0], [12.9, 10.0, 20.0, 10.0]], [500, 100, 200])
+    out = extend_hidden_ends(walls, xyz, height, VerticalStructureConfig())
+    assert out.segments == pytest.approx(np.array([[-0.5, 10.0, 21.0, 10.0]]), abs=1e-9)
+    assert (out.n_points.tolist(), out.max_gap[0]) == ([800], pytest.approx(0.9, abs=1e-9))
