@@ -1662,9 +1662,15 @@ def _returns_past_ends(xy: np.ndarray, ends: np.ndarray, out_dir: np.ndarray, re
     sel = sel[np.argsort(key[sel], kind="stable")]
     sorted_key = key[sel]
     lo, hi = np.searchsorted(sorted_key, wanted, "left"), np.searchsorted(sorted_key, wanted, "right")
+    owner, at = _ranges(lo, hi)
+    return e[owner], sel[at]
+
+
+def _ranges(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The ranges ``lo[k] .. hi[k] - 1`` ((K,) each) one after another: (owner k (S,), index (S,))."""
     n = hi - lo
-    at = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + np.repeat(lo, n)
-    return np.repeat(e, n), sel[at]
+    owner = np.repeat(np.arange(len(n)), n)
+    return owner, np.arange(n.sum()) - (np.cumsum(n) - n)[owner] + lo[owner]
 
 
 def _join_reached(result: ScanSegments, moved: np.ndarray, config: VerticalStructureConfig) -> ScanSegments:
@@ -1770,9 +1776,7 @@ def _hidden_above(xyz: np.ndarray, end: np.ndarray, point: np.ndarray, ends: np.
     u_bin = col[point[first_of]]
     lo = np.searchsorted(sorted_col, u_bin - 1, side="left")
     hi = np.searchsorted(sorted_col, u_bin + 1, side="right")
-    n = hi - lo
-    test = np.repeat(np.arange(len(unique)), n)
-    at = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + np.repeat(lo, n)
+    test, at = _ranges(lo, hi)
     idx = near[at]
     rel = xyz[idx, :2] - ends[u_end[test]]
     d = out_dir[u_end[test]]
