@@ -37,7 +37,10 @@ Per world and overall it prints:
 - with ``--losses K`` (tuning and probe worlds only: held-out worlds are not looked into): where the
   segment coverage is lost, i.e. the observed wall length no segment covers, by how the drive saw it at
   best (every view >= 84 deg from head-on, every view > 80 m away, at most 2 scans, other), and the K
-  longest uncovered stretches with their views (``featmap.evaluation.observation_metrics.uncovered_stretches``).
+  longest uncovered stretches with their views (``featmap.evaluation.observation_metrics.uncovered_stretches``);
+  and per method where its fused map loses that coverage (``fusion_losses``): the observed length only
+  segments it dropped covered (its support filter), the length a kept segment covered and its fused
+  feature does not (the fit), and the dropped segments' own length on building walls and elsewhere.
 - with ``--variant "KEY=VALUE ..."`` (repeatable; tuning and probe worlds only): the same worlds again
   with each variant's settings on top of ``--set``, and a table comparing every variant with the
   configuration without them (observation recall, segment coverage and each method's precision and
@@ -71,8 +74,8 @@ from featmap.datasets import KittiRawDataset
 from featmap.errors import FeatmapError
 from featmap.evaluation import load_simulator_truth, truth_metrics
 from featmap.evaluation.observation_metrics import (FAR_VIEW_M, FEW_VIEWS, GRAZING_VIEW_DEG, LOSS_KINDS,
-                                                   UncoveredStretches, match_observations, truth_from_observations,
-                                                   uncovered_stretches, union_coverage)
+                                                   UncoveredStretches, fusion_losses, match_observations,
+                                                   truth_from_observations, uncovered_stretches, union_coverage)
 from featmap.fusion import fuse
 from featmap.io.segments_csv import SegmentTable
 from featmap.io.sim_truth import read_observations
@@ -184,6 +187,8 @@ def score_world(root: Path, frames: list[int], table: SegmentTable, config, meth
         seconds = time.perf_counter() - start
         metrics = truth_metrics(result.segments, truth)
         metrics["fusion_seconds"] = seconds
+        if losses:
+            metrics["fusion_loss"] = fusion_losses(segments, result.labels < 0, result.segments, truth).__dict__
         out["methods"][name] = metrics
     return out
 
@@ -292,9 +297,29 @@ def loss_tables(results: list[WorldResult], longest: int) -> list[Table]:
     return [by_kind, table]
 
 
-def print_losses(results: list[WorldResult], longest: int, console: Console) -> None:
-    """Print :func:`loss_tables`."""
-    for table in loss_tables(results, longest):
+def fusion_loss_table(results: list[WorldResult], methods: list[str]) -> Table:
+    """Where each method's fused maps lose the segments' coverage, pooled over the worlds looked into."""
+    table = Table(title="observed wall length the segments cover and the fused map does not, by cause "
+                        f"({sum(r.losses is not None for r in results)} worlds; metres)")
+    for col in ("method", "coverage - recall", "support filter", "fit", "gained", "support filter, worlds (most metres)",
+                "dropped on walls", "dropped elsewhere"):
+        table.add_column(col, justify="left" if col in ("method", "support filter, worlds (most metres)") else "right")
+    for name in methods:
+        per = [(r.seed, r.methods[name]["fusion_loss"]) for r in results if "fusion_loss" in r.methods[name]]
+        tot = lambda key: sum(loss[key] for _, loss in per)  # noqa: E731
+        worst = sorted(((loss["filtered_m"], seed) for seed, loss in per), reverse=True)[:4]
+        observed = tot("observed_m")
+        gap = tot("segments_m") - tot("fused_m")
+        table.add_row(name, f"{gap:.1f} ({gap / observed:.4f})" if observed else "-", f"{tot('filtered_m'):.1f}",
+                      f"{tot('fit_m'):.1f}", f"{tot('gained_m'):.1f}",
+                      ", ".join(f"{seed} ({m:.1f})" for m, seed in worst if m > 0.05),
+                      f"{tot('dropped_wall_m'):.0f}", f"{tot('dropped_other_m'):.0f}")
+    return table
+
+
+def print_losses(results: list[WorldResult], longest: int, methods: list[str], console: Console) -> None:
+    """Print :func:`loss_tables` and :func:`fusion_loss_table`."""
+    for table in (*loss_tables(results, longest), fusion_loss_table(results, methods)):
         console.print(table)
 
 
@@ -530,7 +555,7 @@ def _run(args, console: Console) -> int:
                       f"counts only the {extracted_now} extracted now")
     print_report(results, methods, args.split, wall_seconds, workers, console, extracted_now)
     if args.losses:
-        print_losses(results, args.losses, console)
+        print_losses(results, args.losses, methods, console)
     compared = []
     for text, variant_config in variants:
         console.print(f"variant {text}:")
@@ -552,7 +577,8 @@ def _run(args, console: Console) -> int:
         if args.losses:
             replace_block(results_md, "generalization_losses",
                           f"{command} --docs` ({args.split} worlds, seeds {', '.join(map(str, seeds))}):\n\n"
-                          + "\n\n".join(rich_table_markdown(t) for t in loss_tables(results, args.losses)))
+                          + "\n\n".join(rich_table_markdown(t) for t in (*loss_tables(results, args.losses),
+                                                                          fusion_loss_table(results, methods))))
             console.print("wrote where the segment coverage is lost into docs/results.md")
     if args.json:
         from featmap.io.atomic import atomic_write_text

@@ -35,10 +35,16 @@ def _stretches(lengths, views, nearest, best):
 def test_loss_report_adds_the_kinds_up(bench):
     a = _stretches([4.0, 1.0], [5, 1], [30.0, 20.0], [86.0, 10.0])     # grazing 4 m, few views 1 m
     b = _stretches([2.5, 0.5], [9, 9], [95.0, 40.0], [5.0, 30.0])      # far 2.5 m, other 0.5 m
-    results = [bench.WorldResult(seed, "sensor", 1, 1, 1, (0, 0), (0, 0), 1.0, 1.0, 0.99, 1, [], [], {}, lost)
+    loss = lambda filtered, fit, gained, wall, other: {  # noqa: E731
+        "fusion_loss": {"observed_m": 500.0, "segments_m": 490.0, "fused_m": 490.0 - filtered - fit + gained,
+                        "filtered_m": filtered, "fit_m": fit, "gained_m": gained, "dropped_wall_m": wall,
+                        "dropped_other_m": other}}
+    fusion = {1: loss(3.0, 1.0, 0.5, 10.0, 40.0), 2: loss(1.5, 0.0, 0.0, 2.0, 8.0)}
+    results = [bench.WorldResult(seed, "sensor", 1, 1, 1, (0, 0), (0, 0), 1.0, 1.0, 0.99, 1, [], [],
+                                 {"proposed": fusion[seed]}, lost)
                for seed, lost in ((1, a), (2, b))]
     console = Console(record=True, width=250)
-    bench.print_losses(results, 3, console)
+    bench.print_losses(results, 3, ["proposed"], console)
     text = console.export_text()
     rows = {line.split("│")[1].strip(): [c.strip() for c in line.split("│")[2:-1]]
             for line in text.splitlines() if line.startswith("│")}
@@ -47,6 +53,8 @@ def test_loss_report_adds_the_kinds_up(bench):
     assert rows["few views"][:4] == ["1", "1.0", "0.12", "0.0010"]
     assert rows["other"][:4] == ["1", "0.5", "0.06", "0.0005"]
     assert rows["all"][:4] == ["4", "8.0", "1.00", "0.0080"]
+    # the fused map's loss against the segments' coverage, pooled: 5.0 m = 4.5 filtered + 1.0 fit - 0.5 gained
+    assert rows["proposed"] == ["5.0 (0.0050)", "4.5", "1.0", "0.5", "1 (3.0), 2 (1.5)", "12", "48"]
     # the longest three, longest first (seed, length, kind)
     longest = [(cells[0].strip(), cells[4].strip(), cells[10].strip()) for cells in
                (line.split("│")[1:-1] for line in text.splitlines() if line.startswith("│"))

@@ -20,6 +20,9 @@ Definitions (tolerances of EVALUATION.md: ``TOL = 0.30 m``, ``ANG = 10 deg``, sa
 - Where that ceiling is lost: the **uncovered stretches** (:func:`uncovered_stretches`), each with the
   views that observed it (how many scans, from how far, how far from head-on), sorted into kinds by
   its best view (:meth:`UncoveredStretches.kind`).
+- Where a fused map falls short of the ceiling: :func:`fusion_losses` splits the observed length the
+  segments cover and the map does not into what the fusion's support filter dropped and what its fit
+  lost, and measures the dropped segments on and off the walls.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from featmap.evaluation.truth_metrics import ANG_DEG, STEP_M, TOL_M, GroundTruth, observed_samples
+from featmap.evaluation.truth_metrics import ANG_DEG, STEP_M, TOL_M, GroundTruth, building_samples, observed_samples
 from featmap.io.sim_truth import ScanObservations
 
 MATCH_MIN_M = 1.0
@@ -314,3 +317,61 @@ def uncovered_stretches(segments: np.ndarray, truth: GroundTruth, obs: ScanObser
                               nearest_m=np.array(cols[4], float), nearest_incidence_deg=np.array(cols[5], float),
                               best_incidence_deg=np.array(cols[6], float), max_hits=np.array(cols[7], np.int64),
                               observed_m=float(weight.sum()))
+
+
+# --- where a fused map loses the segments' coverage ------------------------------------------------------
+
+@dataclass(frozen=True)
+class FusionLoss:
+    """Where a fused map's recall falls short of its input segments' coverage (metres).
+
+    Lengths of observed wall (the observable walls' observed parts, as for recall):
+
+    Attributes:
+        observed_m: all of it.
+        segments_m: lying on an input segment (segment coverage x ``observed_m``).
+        fused_m: lying on a fused feature (recall x ``observed_m``).
+        filtered_m: lying on dropped input segments only (on none the fusion kept) and on no fused feature:
+            what the fusion's support filter took away.
+        fit_m: lying on a kept input segment but on no fused feature: what the clusters' fit lost.
+        gained_m: lying on a fused feature but on no input segment.
+        dropped_wall_m, dropped_other_m: the dropped segments' own length lying on a building wall and
+            elsewhere (summed over the segments, so overlapping views of one place add up).
+
+    ``segments_m - fused_m == filtered_m + fit_m - gained_m`` (to rounding).
+    """
+
+    observed_m: float
+    segments_m: float
+    fused_m: float
+    filtered_m: float
+    fit_m: float
+    gained_m: float
+    dropped_wall_m: float
+    dropped_other_m: float
+
+
+def fusion_losses(segments: np.ndarray, dropped: np.ndarray, fused: np.ndarray, truth: GroundTruth) -> FusionLoss:
+    """Split the observed wall length the input segments cover and the fused map does not.
+
+    Args:
+        segments: (N, 4) the fusion's input segments (every scan's), in the frame of ``truth``.
+        dropped: (N,) True for the segments in no fused feature (``FusionResult.labels < 0``).
+        fused: (M, 4) the fused map, same frame.
+        truth: walls and their observed parts.
+    """
+    segments = np.asarray(segments, float).reshape(-1, 4)
+    dropped = np.asarray(dropped, bool).reshape(-1)
+    if len(dropped) != len(segments):
+        raise ValueError(f"dropped has {len(dropped)} entries for {len(segments)} segments")
+    _, _, weight, on_kept = covered_samples(segments[~dropped], truth)
+    on_dropped = covered_samples(segments[dropped], truth)[3]
+    on_fused = covered_samples(fused, truth)[3]
+    on_segment = on_kept | on_dropped
+    _, _, seg_weight, _, seg_wall, _ = building_samples(segments[dropped], truth)
+    metres = lambda mask: float(weight[mask].sum())  # noqa: E731
+    return FusionLoss(observed_m=float(weight.sum()), segments_m=metres(on_segment), fused_m=metres(on_fused),
+                      filtered_m=metres(on_dropped & ~on_kept & ~on_fused), fit_m=metres(on_kept & ~on_fused),
+                      gained_m=metres(on_fused & ~on_segment),
+                      dropped_wall_m=float(seg_weight[seg_wall >= 0].sum()),
+                      dropped_other_m=float(seg_weight[seg_wall < 0].sum()))

@@ -126,6 +126,27 @@ def observed_samples(truth: GroundTruth, walls_mask: np.ndarray, step: float = S
     return np.concatenate(pts), np.concatenate(owner), np.concatenate(weight)
 
 
+def building_samples(segments: np.ndarray, truth: GroundTruth):
+    """Samples every ``STEP_M`` along (K, 4) segments and the building wall each lies on (the nearest one).
+
+    Returns:
+        (samples (S, 2), owner (S,) segment index, length weight (S,), unit directions (S, 2),
+        wall (S,) index into ``truth.walls`` or -1 where the sample lies on no building wall,
+        distance (S,) to that wall in metres, inf where none), in the frame of ``truth``.
+    """
+    segments = np.asarray(segments, float).reshape(-1, 4)
+    samples, owner, weight = sample_segments(segments) if len(segments) else (np.zeros((0, 2)), np.zeros(0, int), np.zeros(0))
+    sdir = segment_directions(segments)[owner] if len(segments) else np.zeros((0, 2))
+    best = np.full(len(samples), np.inf)
+    best_wall = np.full(len(samples), -1)
+    for w in np.flatnonzero(walls_near(truth.walls, samples, 2 * TOL_M)):    # (no other wall can hold a sample)
+        ok, perp = lies_on(samples, sdir, truth.walls[w])
+        better = ok & (perp < best)
+        best[better] = perp[better]
+        best_wall[better] = w
+    return samples, owner, weight, sdir, best_wall, best
+
+
 def truth_metrics(fused: np.ndarray, truth: GroundTruth) -> dict:
     """All metrics of EVALUATION.md for fused segments (M, 4) in the truth's local frame."""
     fused = np.asarray(fused, float).reshape(-1, 4)
@@ -135,15 +156,7 @@ def truth_metrics(fused: np.ndarray, truth: GroundTruth) -> dict:
                  "count_ratio": float(len(fused) / n_obs) if n_obs else None}
 
     # precision / offset: fused samples on building walls (and on any structure)
-    samples, owner, weight = sample_segments(fused) if len(fused) else (np.zeros((0, 2)), np.zeros(0, int), np.zeros(0))
-    sdir = segment_directions(fused)[owner] if len(fused) else np.zeros((0, 2))
-    best = np.full(len(samples), np.inf)
-    best_wall = np.full(len(samples), -1)
-    for w in np.flatnonzero(walls_near(truth.walls, samples, 2 * TOL_M)):    # (no other wall can hold a sample)
-        ok, perp = lies_on(samples, sdir, truth.walls[w])
-        better = ok & (perp < best)
-        best[better] = perp[better]
-        best_wall[better] = w
+    samples, owner, weight, sdir, best_wall, best = building_samples(fused, truth)
     on_building = best_wall >= 0
     on_any = on_building.copy()
     for seg in truth.other_segments:

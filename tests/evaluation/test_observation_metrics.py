@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from featmap.evaluation import GroundTruth, truth_metrics
-from featmap.evaluation.observation_metrics import (lies_on_matrix, match_observations, merge_intervals, observation_samples,
-                                         truth_from_observations, uncovered_stretches, union_coverage)
+from featmap.evaluation.observation_metrics import (fusion_losses, lies_on_matrix, match_observations, merge_intervals,
+                                                   observation_samples, truth_from_observations, uncovered_stretches,
+                                                   union_coverage)
 from featmap.io.sim_truth import ScanObservations
 from featmap.simulation.observations import concatenate, observe_scan
 
@@ -141,3 +142,32 @@ def test_uncovered_stretches_and_how_they_were_seen():
     assert len(uncovered_stretches(np.array([[0.0, 0.0, 10.0, 0.0], [10.0, 0.0, 10.0, 8.0]]), truth, obs, sensors)) == 0
     unknown = uncovered_stretches(segments, truth, obs, {})
     assert unknown.n_views.tolist() == [0, 0, 0] and np.isnan(unknown.nearest_m).all()
+
+
+def test_fusion_losses_split_what_the_map_does_not_keep():
+    truth = GroundTruth(walls=WALLS, building=np.array(["a", "a"]), labels=np.array([["", ""], ["", ""]]),
+                        observed=[[(0.0, 10.0)], [(0.0, 8.0)]], n_returns=np.full(2, -1))
+    segments = np.array([[1.0, 0.0, 4.0, 0.0],     # kept: covers [0.7, 4.3] of wall 0 (0.3 m tolerance)
+                         [6.0, 0.0, 8.0, 0.0],     # dropped, and nothing kept covers [5.7, 8.3]
+                         [2.0, 0.0, 3.0, 0.0],     # dropped, but inside the kept one
+                         [0.0, 5.0, 2.0, 5.0]])    # dropped clutter, 5 m off every wall
+    dropped = np.array([False, True, True, True])
+    fused = np.array([[1.5, 0.0, 4.0, 0.0],        # the fit lost [0.7, 1.2] of the kept segment's coverage
+                      [10.0, 6.5, 10.0, 7.5]])     # covers [6.2, 7.8] of wall 1, where no segment lies
+    loss = fusion_losses(segments, dropped, fused, truth)
+    assert loss.observed_m == pytest.approx(18.0)
+    assert loss.segments_m == pytest.approx(3.6 + 2.6, abs=0.1)
+    assert loss.fused_m == pytest.approx(3.1 + 1.6, abs=0.1)
+    assert loss.filtered_m == pytest.approx(2.6, abs=0.1)
+    assert loss.fit_m == pytest.approx(0.5, abs=0.1)
+    assert loss.gained_m == pytest.approx(1.6, abs=0.1)
+    assert loss.segments_m - loss.fused_m == pytest.approx(loss.filtered_m + loss.fit_m - loss.gained_m, abs=1e-9)
+    assert loss.dropped_wall_m == pytest.approx(3.0) and loss.dropped_other_m == pytest.approx(2.0)
+    # the same map as the metrics see it: its recall and the segments' coverage
+    assert loss.fused_m / loss.observed_m == pytest.approx(truth_metrics(fused, truth)["recall"], abs=1e-9)
+    assert loss.segments_m / loss.observed_m == pytest.approx(union_coverage(segments, truth), abs=1e-9)
+    # nothing dropped: nothing filtered, and no dropped length
+    kept_all = fusion_losses(segments[:1], np.zeros(1, bool), segments[:1], truth)
+    assert (kept_all.filtered_m, kept_all.fit_m, kept_all.gained_m, kept_all.dropped_wall_m) == (0.0, 0.0, 0.0, 0.0)
+    with pytest.raises(ValueError, match="dropped has 3 entries for 4 segments"):
+        fusion_losses(segments, dropped[:3], fused, truth)
