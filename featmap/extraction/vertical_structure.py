@@ -79,11 +79,14 @@ wall's points away. One pass, no randomness:
    in front of it), may be seen over a narrow band when they stop the top beam (``solid_min_span_m``:
    a facade behind a hedge, or up a slope under the beam), and may have few returns
    (``solid_min_points``). *Shorter pieces* must reach down near the ground
-   (``short_max_bottom_m``: a crown floats). The spread of the scan's long walls (their median rms,
-   i.e. the sensor's noise; not those joined from single columns, whose noise lies along them)
-   bounds everyone's: ``solid_rms_factor`` times it for long pieces,
-   ``short_rms_factor`` for short ones (a crown's facets, a wall merged with a crown in line with
-   it, are thicker than the scan's walls).
+   (``short_max_bottom_m``: a crown floats). The spread of the scan's long walls (their median rms;
+   not those joined from single columns, whose noise lies along them) bounds everyone's:
+   ``short_rms_factor`` times it for short pieces (a crown's facets, a wall merged with a crown in
+   line with it, are thicker than the scan's walls), and ``solid_rms_factor`` times that of the long
+   walls seen within ``NOISE_MAX_INCIDENCE_DEG`` of head-on (when there are 3: the sensor's noise) for
+   long ones. A wall's spread is the range noise times the cosine of its incidence, so where most long
+   walls are far walls seen obliquely, theirs would put the bar below the spread of a near wall seen
+   head-on (2026-12-04, ``docs/results.md``).
 8. **Walls hidden above** (``extend_hidden_m``): only returns ``line_min_height_m`` up place a wall,
    so a bush or a tree crown in front of a garden wall ends it where its upper part disappears
    behind them, though the wall goes on below. Each wall's ends move along its line over its low
@@ -172,7 +175,7 @@ class VerticalStructureConfig(Section):
     solid_length_m: float = Field(3.0, ge=0, description="a piece this long is no tree crown (nor other round thing): it may float (seen over something in front), ...")
     solid_min_span_m: float = Field(0.3, ge=0, description="... may span only this much in height and reach only cell_min_top_m when it stops the top beam (seen over a hedge, or under the beam up a slope) ...")
     solid_min_points: int = Field(20, ge=2, description="... needs this many returns (fewer: sparse far walls) ...")
-    solid_rms_factor: float = Field(3.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do (their median, when there are 3; that is the sensor's noise)")
+    solid_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls seen within 60 deg of head-on do (their median, when there are 3: the sensor's noise; else all long walls')")
     short_max_bottom_m: float = Field(1.0, ge=0, description="a shorter piece reaches down to this height above the ground (plus one of the scan's beam spacings at its range): a tree crown floats ...")
     short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do")
     extend_hidden_m: float = Field(3.0, ge=0, description="a wall goes on past its ends, up to this far along its line, over its low returns whose column is hidden above by something in front (a bush before a garden wall; 0 = off)")
@@ -1533,17 +1536,21 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
     # A piece must be about as thin as this scan's long walls are (their spread is the sensor's noise).
     # (Not on pieces joined from single columns: seen at grazing incidence, the range noise lies along the
     # wall, which looks thinner than the sensor's noise.)
+    # A wall's returns scatter across it by the range noise times the cosine of their incidence, so the
+    # long walls that tell a long piece's bar are those seen within NOISE_MAX_INCIDENCE_DEG of head-on (3
+    # of them; else all): where most long walls are far walls seen obliquely, theirs would set it below the
+    # spread of a near wall seen head-on. Short pieces keep all long walls' median (crown facets).
     typical_of = wall & solid if m.column_chain is None else wall & solid & ~m.column_chain
+    cos_incidence = np.sqrt(np.maximum(1.0 - along_ray ** 2, 0.0))
+    noise_of = typical_of & (cos_incidence >= np.cos(np.deg2rad(NOISE_MAX_INCIDENCE_DEG)))
     if typical_of.sum() >= 3:
         typical = float(np.median(m.rms[typical_of]))
-        wall &= m.rms <= np.where(solid, config.solid_rms_factor, config.short_rms_factor) * typical
+        typical_solid = float(np.median(m.rms[noise_of])) if noise_of.sum() >= 3 else typical
+        wall &= m.rms <= np.where(solid, config.solid_rms_factor * typical_solid, config.short_rms_factor * typical)
         if m.sparse_curve is not None and config.sparse_curve_factor > 0 and azimuth_step_deg:
-            # A column's returns lie along its ray, so they scatter along the wall by the range noise; a
-            # wall's returns scatter across it by that noise times the cosine of their incidence: the
-            # scan's range noise is its long walls' spread over that cosine, taken on the walls seen
-            # within NOISE_MAX_INCIDENCE_DEG of head-on (an oblique wall's spread would underrate it).
-            cos_incidence = np.sqrt(np.maximum(1.0 - along_ray ** 2, 0.0))
-            noise_of = typical_of & (cos_incidence >= np.cos(np.deg2rad(NOISE_MAX_INCIDENCE_DEG)))
+            # A column's returns lie along its ray, so they scatter along the wall by the range noise: the
+            # scan's range noise is its long walls' spread over the cosine of their incidence (those
+            # within NOISE_MAX_INCIDENCE_DEG of head-on: an oblique wall's spread would underrate it).
             if noise_of.sum() >= 3:
                 noise = float(np.median(m.rms[noise_of] / cos_incidence[noise_of]))
                 wall &= ~(sparse & (m.sparse_curve > config.sparse_curve_factor * noise))
@@ -1867,4 +1874,4 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
 
 
 EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,
-                      extract=extract_vertical_structure, version=9)
+                      extract=extract_vertical_structure, version=10)

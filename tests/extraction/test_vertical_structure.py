@@ -302,7 +302,9 @@ def test_a_fence_under_a_crown_behind_street_trees_is_no_wall(monkeypatch):
     assert on_fence(extract_vertical_structure(scan)) == []
     assert len(extract_vertical_structure(scan)) == 2                 # the building's two faces
     monkeypatch.setattr(vs, "MIN_SEEN_FRACTION", 0.0)
-    assert len(on_fence(extract_vertical_structure(scan))) == 1       # judged over the seen columns alone
+    # judged over the seen columns alone it passes the height rules (and, as thin as 3x the head-on walls'
+    # noise, the spread bar the default 2x now also rejects it by)
+    assert len(on_fence(extract_vertical_structure(scan, VerticalStructureConfig(solid_rms_factor=3.0)))) == 1
 
 
 def test_deterministic_and_independent_of_point_order():
@@ -386,6 +388,29 @@ def test_walls_joined_from_single_columns_do_not_set_the_scans_typical_spread():
     assert kept(None) == 6                        # typical 0.011 with the chains: the short wall is dropped
 
 
+def test_far_walls_seen_obliquely_do_not_set_the_spread_a_near_wall_is_held_to():
+    """A wall's returns scatter across it by the range noise times the cosine of its incidence: where most
+    of a scan's long walls are far walls seen obliquely, their thin spread must not reject the near walls
+    seen head-on (a street of apartment blocks: walls of 13,000 returns at 6-10 m were dropped)."""
+    from featmap.extraction.vertical_structure import PieceMeasures, wall_segments
+
+    def kept(n_head_on):
+        oblique_a = np.column_stack([100.0 + 30 * np.arange(5), np.full(5, 20.0)])    # along x, 78-85 deg
+        head_on_a = np.column_stack([10.0 + 5 * np.arange(n_head_on), np.full(n_head_on, -4.0)])   # along y
+        a = np.vstack([oblique_a, head_on_a])
+        b = np.vstack([oblique_a + [8.0, 0.0], head_on_a + [0.0, 8.0]])
+        rms = np.r_[np.full(5, 0.002), np.full(n_head_on, 0.02)]
+        one = np.ones(len(a))
+        m = PieceMeasures(a=a, b=b, count=100 * one, n_points=100 * one, z_mean=0 * one, z_min=-1 * one,
+                          z_max=2 * one, rms=rms, core=one, behind=0 * one, max_gap=0.3 * one,
+                          column_curve=0 * one)
+        return wall_segments(m, VerticalStructureConfig(), 0.2).segments
+
+    assert len(kept(3)) == 8                        # the noise from the three head-on walls: 0.02
+    kept_two = kept(2)                              # too few head-on walls: all long walls' median, 0.002
+    assert len(kept_two) == 5 and np.all(kept_two[:, 1] == 20.0)
+
+
 @pytest.mark.parametrize("points,message", [
     (np.array([[1.0, 2.0, np.nan, 0.0]] * 30), "1 point|30 point"),
     (np.zeros((30, 2)), "expected an \\(N, 3\\) or \\(N, 4\\) array"),
@@ -430,8 +455,10 @@ def test_a_scan_whose_structure_is_all_high_up_gives_its_wall():
 
 
 # Before walls seen 85-87 deg from head-on were linked (adopted 2026-12-03, docs/results.md): columns
-# linked up to 85 deg, without the tests that sparse pieces now pass.
-SPARSE_TESTS_OFF = dict(link_grazing_max_m=0.0, sparse_curve_factor=0.0, sparse_offset_factor=0.0, sparse_max_through=0.0)
+# linked up to 85 deg, without the tests that sparse pieces now pass (and with the spread bar of then,
+# 3x the scan's long walls', which the 2x of the head-on ones adopted 2026-12-04 is stricter than).
+SPARSE_TESTS_OFF = dict(link_grazing_max_m=0.0, sparse_curve_factor=0.0, sparse_offset_factor=0.0, sparse_max_through=0.0,
+                        solid_rms_factor=3.0)
 
 
 def test_linking_columns_up_to_87_deg_finds_a_side_along_the_street_but_not_a_row_of_trees_behind():
