@@ -63,7 +63,7 @@ import shutil
 import statistics
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -188,7 +188,7 @@ def score_world(root: Path, frames: list[int], table: SegmentTable, config, meth
         metrics = truth_metrics(result.segments, truth)
         metrics["fusion_seconds"] = seconds
         if losses:
-            metrics["fusion_loss"] = fusion_losses(segments, result.labels < 0, result.segments, truth).__dict__
+            metrics["fusion_loss"] = asdict(fusion_losses(segments, result.labels < 0, result.segments, truth))
         out["methods"][name] = metrics
     return out
 

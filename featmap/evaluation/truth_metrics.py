@@ -126,7 +126,8 @@ def observed_samples(truth: GroundTruth, walls_mask: np.ndarray, step: float = S
     return np.concatenate(pts), np.concatenate(owner), np.concatenate(weight)
 
 
-def building_samples(segments: np.ndarray, truth: GroundTruth):
+def building_samples(segments: np.ndarray, truth: GroundTruth
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Samples every ``STEP_M`` along (K, 4) segments and the building wall each lies on (the nearest one).
 
     Returns:

@@ -83,8 +83,8 @@ wall's points away. One pass, no randomness:
    not those joined from single columns, whose noise lies along them) bounds everyone's:
    ``short_rms_factor`` times it for short pieces (a crown's facets, a wall merged with a crown in
    line with it, are thicker than the scan's walls), and ``solid_rms_factor`` times that of the long
-   walls seen within ``NOISE_MAX_INCIDENCE_DEG`` of head-on (when there are 3: the sensor's noise) for
-   long ones. A wall's spread is the range noise times the cosine of its incidence, so where most long
+   walls seen within ``NOISE_MAX_INCIDENCE_DEG`` of head-on (when there are 3: the sensor's noise; else
+   all long walls') for long ones. A wall's spread is the range noise times the cosine of its incidence, so where most long
    walls are far walls seen obliquely, theirs would put the bar below the spread of a near wall seen
    head-on (2026-12-04, ``docs/results.md``).
 8. **Walls hidden above** (``extend_hidden_m``): only returns ``line_min_height_m`` up place a wall,
@@ -1533,13 +1533,12 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
                                 + config.sparse_offset_floor_m))
         if m.through is not None and config.sparse_max_through > 0:
             wall &= ~(sparse & (m.through > config.sparse_max_through))
-    # A piece must be about as thin as this scan's long walls are (their spread is the sensor's noise).
-    # (Not on pieces joined from single columns: seen at grazing incidence, the range noise lies along the
-    # wall, which looks thinner than the sensor's noise.)
-    # A wall's returns scatter across it by the range noise times the cosine of their incidence, so the
-    # long walls that tell a long piece's bar are those seen within NOISE_MAX_INCIDENCE_DEG of head-on (3
-    # of them; else all): where most long walls are far walls seen obliquely, theirs would set it below the
-    # spread of a near wall seen head-on. Short pieces keep all long walls' median (crown facets).
+    # A piece must be about as thin as this scan's long walls are (not those joined from single columns:
+    # seen at grazing incidence, their range noise lies along the wall). A wall's returns scatter across it
+    # by the range noise times the cosine of their incidence, so the long walls that set a long piece's bar
+    # are those seen within NOISE_MAX_INCIDENCE_DEG of head-on (their spread is the sensor's noise; 3 of
+    # them, else all long walls): where most long walls are far walls seen obliquely, theirs would put it
+    # below the spread of a near wall seen head-on. Short pieces keep all long walls' median (crown facets).
     typical_of = wall & solid if m.column_chain is None else wall & solid & ~m.column_chain
     cos_incidence = np.sqrt(np.maximum(1.0 - along_ray ** 2, 0.0))
     noise_of = typical_of & (cos_incidence >= np.cos(np.deg2rad(NOISE_MAX_INCIDENCE_DEG)))
