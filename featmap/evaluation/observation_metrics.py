@@ -179,14 +179,16 @@ def truth_from_observations(base: GroundTruth, obs: ScanObservations, counting: 
     return replace(base, observed=[merge_intervals(iv) for iv in per_wall], n_returns=hits)
 
 
-def covered_samples(segments: np.ndarray, truth: GroundTruth, chunk: int = 64
+def covered_samples(segments: np.ndarray, truth: GroundTruth, chunk: int = 64, samples: tuple | None = None
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Samples along the observable walls' observed parts and whether one of ``segments`` (K, 4) covers each.
+
+    ``samples``: those samples, ``observed_samples(truth, truth.observable())``, when made already.
 
     Returns:
         (points (S, 2), wall index (S,), length weight (S,), covered (S,) bool), in the frame of ``truth``.
     """
-    points, wall, weight = observed_samples(truth, truth.observable())
+    points, wall, weight = observed_samples(truth, truth.observable()) if samples is None else samples
     covered = np.zeros(len(points), bool)
     if not len(points):
         return points, wall, weight, covered
@@ -364,9 +366,10 @@ def fusion_losses(segments: np.ndarray, dropped: np.ndarray, fused: np.ndarray, 
     dropped = np.asarray(dropped, bool).reshape(-1)
     if len(dropped) != len(segments):
         raise ValueError(f"dropped has {len(dropped)} entries for {len(segments)} segments")
-    _, _, weight, on_kept = covered_samples(segments[~dropped], truth)
-    on_dropped = covered_samples(segments[dropped], truth)[3]
-    on_fused = covered_samples(fused, truth)[3]
+    samples = observed_samples(truth, truth.observable())          # (made once for the three)
+    _, _, weight, on_kept = covered_samples(segments[~dropped], truth, samples=samples)
+    on_dropped = covered_samples(segments[dropped], truth, samples=samples)[3]
+    on_fused = covered_samples(fused, truth, samples=samples)[3]
     on_segment = on_kept | on_dropped
     _, _, seg_weight, _, seg_wall, _ = building_samples(segments[dropped], truth)
     metres = lambda mask: float(weight[mask].sum())  # noqa: E731
