@@ -79,7 +79,9 @@ wall's points away. One pass, no randomness:
    in front of it), may be seen over a narrow band when they stop the top beam (``solid_min_span_m``:
    a facade behind a hedge, or up a slope under the beam), and may have few returns
    (``solid_min_points``). *Shorter pieces* must reach down near the ground
-   (``short_max_bottom_m``: a crown floats). The spread of the scan's long walls (their median rms;
+   (``short_max_bottom_m``: a crown floats), unless, with ``short_hidden_below`` (off by default; measured
+   in ``docs/results.md``), their bottom is hidden by something in front: the returns just below their
+   lowest, in their direction, lie nearer (a house front seen over a hedge or a car; rays pass under a crown). The spread of the scan's long walls (their median rms;
    not those joined from single columns, whose noise lies along them) bounds everyone's:
    ``short_rms_factor`` times it for short pieces (a crown's facets, a wall merged with a crown in
    line with it, are thicker than the scan's walls), and ``solid_rms_factor`` times that of the long
@@ -177,6 +179,7 @@ class VerticalStructureConfig(Section):
     solid_min_points: int = Field(20, ge=2, description="... needs this many returns (fewer: sparse far walls) ...")
     solid_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls seen within 60 deg of head-on do (their median, when there are 3: the sensor's noise; else all long walls')")
     short_max_bottom_m: float = Field(1.0, ge=0, description="a shorter piece reaches down to this height above the ground (plus one of the scan's beam spacings at its range): a tree crown floats ...")
+    short_hidden_below: bool = Field(False, description="... unless its bottom is hidden by something in front (in at least half of its cells, the returns up to 2 beam spacings below its lowest one in its direction lie nearer: a wall seen over a hedge or a car, not a crown, under which the rays pass)")
     short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do")
     extend_hidden_m: float = Field(3.0, ge=0, description="a wall goes on past its ends, up to this far along its line, over its low returns whose column is hidden above by something in front (a bush before a garden wall; 0 = off)")
 
@@ -206,6 +209,8 @@ MIN_SEEN_FRACTION = 0.25
 this share of its columns (else over all its columns)."""
 SEEN_OVER_M = 0.5
 """A return this much farther away than a structure, and higher, was seen over it (metres)."""
+HIDDEN_BELOW_BEAMS = 2.0
+"""How far below a cell's lowest return (in beam spacings) a nearer return hides its bottom (``short_hidden_below``)."""
 CORNER_MIN_DEG = 45.0
 """Two pieces whose directions differ at least this much meet at a corner (degrees): see :func:`rejoin_corner_cells`."""
 
@@ -296,6 +301,8 @@ class Cells:
         reaches_top: (C,) a point of the cell is hit by (within the envelope margins of) the top beam,
             and the sensor does not see over the cell.
         hidden_above: (C,) the top beam stopped nearer in the cell's direction: its top is not seen.
+        hidden_below: (C,) a return up to ``HIDDEN_BELOW_BEAMS`` beam spacings below the cell's lowest one,
+            in its direction, lies nearer: its bottom is not seen (all False unless ``short_hidden_below``).
         grid_keys, grid_counts, grid_origin: every cell (sorted keys) with non-ground points at most
             ``BEHIND_MAX_HEIGHT_M`` high, and how many, to count such points anywhere (``points_at``).
     """
@@ -311,6 +318,7 @@ class Cells:
     grid_keys: np.ndarray
     grid_counts: np.ndarray
     grid_origin: tuple
+    hidden_below: np.ndarray | None = None
 
     def points_at(self, xy: np.ndarray) -> np.ndarray:
         """(K,) low non-ground points in the ``cell_m`` cell under each (K, 2) position."""
@@ -394,8 +402,43 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
     seen_over = (over_slope[b] > slope + 1e-4) & (over_range[b] > cell_range + SEEN_OVER_M)
     reaches = (reach >= -margin) & ~seen_over & (cell_range >= reach_from_m)
     hidden = ~reaches & (top_range[b] < cell_range - SEEN_OVER_M)
+    below = (_hidden_below(sensor_xyz, sensor_rng, point_cell, inside, n, cell_range, b, az_bin, config)
+             if config.short_hidden_below else None)
     return Cells(point_cell, count, centroid, scatter, top[candidate], bottom, reaches, hidden,
-                 grid_keys, grid_counts, (config.cell_m, i0, j0, width))
+                 grid_keys, grid_counts, (config.cell_m, i0, j0, width), below)
+
+
+def _hidden_below(sensor_xyz: np.ndarray, sensor_rng: np.ndarray, point_cell: np.ndarray, inside: np.ndarray,
+                  n: int, cell_range: np.ndarray, cell_bin: np.ndarray, az_bin, config: VerticalStructureConfig
+                  ) -> np.ndarray:
+    """(n,) the cells whose bottom is hidden: in their azimuth bin (``az_bin``, ``cell_bin`` (n,)), a return
+    at most ``HIDDEN_BELOW_BEAMS`` beam spacings below the cell's lowest one lies ``SEEN_OVER_M`` nearer.
+    ``sensor_xyz`` (M, 3) and ``sensor_rng`` (M,): the non-ground returns in the sensor's frame;
+    ``point_cell`` (M,) their candidate cell (-1: none); ``inside``: the indices of those in one."""
+    slope = sensor_xyz[:, 2] / np.maximum(sensor_rng, 1e-9)
+    lowest = np.full(n, np.inf)
+    np.minimum.at(lowest, point_cell[inside], slope[inside])
+    # Returns sorted by (bin, slope): each cell's window of slopes below its lowest is one slice.
+    point_bin = az_bin(sensor_xyz[:, :2])
+    key = point_bin * 4.0 + np.clip(slope, -1.9, 1.9)
+    order = np.argsort(key, kind="stable")
+    key, near = key[order], sensor_rng[order]
+    band = HIDDEN_BELOW_BEAMS * np.tan(np.deg2rad(config.elevation_step_deg))
+    top_key = cell_bin * 4.0 + np.clip(lowest, -1.9, 1.9)
+    hi = np.searchsorted(key, top_key, side="left")
+    lo = np.searchsorted(key, top_key - band, side="left")
+    # The nearest return in each window (windows may be empty); prefix minima do not apply, so a sparse
+    # table would be overkill: the windows hold a few returns each.
+    out = np.zeros(n, bool)
+    has = np.flatnonzero(hi > lo)
+    if len(has):
+        counts = hi[has] - lo[has]
+        idx = np.repeat(lo[has], counts) + (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts))
+        owner = np.repeat(np.arange(len(has)), counts)
+        nearest = np.full(len(has), np.inf)
+        np.minimum.at(nearest, owner, near[idx])
+        out[has] = nearest < cell_range[has] - SEEN_OVER_M
+    return out
 
 
 def continuous_tops(cell: np.ndarray, height: np.ndarray, n: int, gap: np.ndarray) -> np.ndarray:
@@ -1103,6 +1146,10 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     spacing = np.hypot(cells.centroid[members, 0], cells.centroid[members, 1]) * np.tan(np.deg2rad(config.elevation_step_deg))
     floats = np.full(n, np.inf)
     np.minimum.at(floats, piece, cells.bottom[members] - spacing)
+    if cells.hidden_below is not None:
+        # A piece whose bottom is hidden by something in front is no crown for floating (rays pass under a crown).
+        hidden_below = np.bincount(piece, cells.hidden_below[members], n) >= 0.5 * np.bincount(piece, minlength=n)
+        floats = np.where(hidden_below, -np.inf, floats)
     length = np.hypot(*(b - a).T)
     solid = length >= config.solid_length_m
     ok = (count >= np.where(solid, config.solid_min_points, config.min_points)) & (length >= config.min_length_m)
