@@ -80,8 +80,9 @@ wall's points away. One pass, no randomness:
    a facade behind a hedge, or up a slope under the beam), and may have few returns
    (``solid_min_points``). *Shorter pieces* must reach down near the ground
    (``short_max_bottom_m``: a crown floats), unless, with ``short_hidden_below`` (off by default; measured
-   in ``docs/results.md``), their bottom is hidden by something in front: the returns just below their
-   lowest, in their direction, lie nearer (a house front seen over a hedge or a car; rays pass under a crown). The spread of the scan's long walls (their median rms;
+   in ``docs/results.md``), their bottom is hidden by something in front: in at least half of their cells,
+   the nearest return up to 2 beam spacings below the lowest one, in its direction, lies 0.5 m nearer (a
+   house front seen over a hedge or a car; rays pass under a crown). The spread of the scan's long walls (their median rms;
    not those joined from single columns, whose noise lies along them) bounds everyone's:
    ``short_rms_factor`` times it for short pieces (a crown's facets, a wall merged with a crown in
    line with it, are thicker than the scan's walls), and ``solid_rms_factor`` times that of the long
@@ -179,7 +180,7 @@ class VerticalStructureConfig(Section):
     solid_min_points: int = Field(20, ge=2, description="... needs this many returns (fewer: sparse far walls) ...")
     solid_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls seen within 60 deg of head-on do (their median, when there are 3: the sensor's noise; else all long walls')")
     short_max_bottom_m: float = Field(1.0, ge=0, description="a shorter piece reaches down to this height above the ground (plus one of the scan's beam spacings at its range): a tree crown floats ...")
-    short_hidden_below: bool = Field(False, description="... unless its bottom is hidden by something in front (in at least half of its cells, the returns up to 2 beam spacings below its lowest one in its direction lie nearer: a wall seen over a hedge or a car, not a crown, under which the rays pass)")
+    short_hidden_below: bool = Field(False, description="... unless its bottom is hidden by something in front (in at least half of its cells, the nearest return up to 2 beam spacings below the lowest one, in its direction, lies 0.5 m nearer: a wall seen over a hedge or a car, not a crown, under which the rays pass)")
     short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do")
     extend_hidden_m: float = Field(3.0, ge=0, description="a wall goes on past its ends, up to this far along its line, over its low returns whose column is hidden above by something in front (a bush before a garden wall; 0 = off)")
 
@@ -301,8 +302,9 @@ class Cells:
         reaches_top: (C,) a point of the cell is hit by (within the envelope margins of) the top beam,
             and the sensor does not see over the cell.
         hidden_above: (C,) the top beam stopped nearer in the cell's direction: its top is not seen.
-        hidden_below: (C,) a return up to ``HIDDEN_BELOW_BEAMS`` beam spacings below the cell's lowest one,
-            in its direction, lies nearer: its bottom is not seen (all False unless ``short_hidden_below``).
+        hidden_below: (C,) the nearest return up to ``HIDDEN_BELOW_BEAMS`` beam spacings below the cell's
+            lowest one, in its azimuth bin, lies ``SEEN_OVER_M`` nearer: its bottom is not seen (None unless
+            ``short_hidden_below``).
         grid_keys, grid_counts, grid_origin: every cell (sorted keys) with non-ground points at most
             ``BEHIND_MAX_HEIGHT_M`` high, and how many, to count such points anywhere (``points_at``).
     """
@@ -411,20 +413,23 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
 def _hidden_below(sensor_xyz: np.ndarray, sensor_rng: np.ndarray, point_cell: np.ndarray, inside: np.ndarray,
                   n: int, cell_range: np.ndarray, cell_bin: np.ndarray, az_bin, config: VerticalStructureConfig
                   ) -> np.ndarray:
-    """(n,) the cells whose bottom is hidden: in their azimuth bin (``az_bin``, ``cell_bin`` (n,)), a return
-    at most ``HIDDEN_BELOW_BEAMS`` beam spacings below the cell's lowest one lies ``SEEN_OVER_M`` nearer.
+    """(n,) the cells whose bottom is hidden: in their azimuth bin (``az_bin``, ``cell_bin`` (n,)), the
+    nearest return at most ``HIDDEN_BELOW_BEAMS`` beam spacings (in tan(elevation)) below the cell's lowest
+    one lies ``SEEN_OVER_M`` nearer than the cell (``cell_range`` (n,): its centroid's horizontal range).
     ``sensor_xyz`` (M, 3) and ``sensor_rng`` (M,): the non-ground returns in the sensor's frame;
     ``point_cell`` (M,) their candidate cell (-1: none); ``inside``: the indices of those in one."""
     slope = sensor_xyz[:, 2] / np.maximum(sensor_rng, 1e-9)
     lowest = np.full(n, np.inf)
     np.minimum.at(lowest, point_cell[inside], slope[inside])
-    # Returns sorted by (bin, slope): each cell's window of slopes below its lowest is one slice.
-    point_bin = az_bin(sensor_xyz[:, :2])
-    key = point_bin * 4.0 + np.clip(slope, -1.9, 1.9)
-    order = np.argsort(key, kind="stable")
-    key, near = key[order], sensor_rng[order]
+    # Returns sorted by (bin, slope): each cell's window of slopes below its lowest is one slice. The
+    # stride between bins exceeds the slopes' span plus the window, so no window reaches into the next bin.
     band = HIDDEN_BELOW_BEAMS * np.tan(np.deg2rad(config.elevation_step_deg))
-    top_key = cell_bin * 4.0 + np.clip(lowest, -1.9, 1.9)
+    lim = 1e3                                   # |slope| beyond it: within 0.06 deg of straight up or down
+    stride = 2 * lim + band + 1.0
+    key = az_bin(sensor_xyz[:, :2]) * stride + np.clip(slope, -lim, lim)
+    order = np.argsort(key)
+    key, near = key[order], sensor_rng[order]
+    top_key = cell_bin * stride + np.clip(lowest, -lim, lim)
     hi = np.searchsorted(key, top_key, side="left")
     lo = np.searchsorted(key, top_key - band, side="left")
     # The nearest return in each window (windows may be empty); prefix minima do not apply, so a sparse
@@ -1146,10 +1151,10 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     spacing = np.hypot(cells.centroid[members, 0], cells.centroid[members, 1]) * np.tan(np.deg2rad(config.elevation_step_deg))
     floats = np.full(n, np.inf)
     np.minimum.at(floats, piece, cells.bottom[members] - spacing)
-    if cells.hidden_below is not None:
-        # A piece whose bottom is hidden by something in front is no crown for floating (rays pass under a crown).
-        hidden_below = np.bincount(piece, cells.hidden_below[members], n) >= 0.5 * np.bincount(piece, minlength=n)
-        floats = np.where(hidden_below, -np.inf, floats)
+    # With short_hidden_below, a piece whose bottom is hidden by something in front in at least half of its
+    # cells (cells, not columns) may float: rays pass under a crown, not under a wall seen over a hedge.
+    hidden_below = (np.zeros(n, bool) if cells.hidden_below is None else
+                    np.bincount(piece, cells.hidden_below[members], n) >= 0.5 * np.bincount(piece, minlength=n))
     length = np.hypot(*(b - a).T)
     solid = length >= config.solid_length_m
     ok = (count >= np.where(solid, config.solid_min_points, config.min_points)) & (length >= config.min_length_m)
@@ -1159,7 +1164,7 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     seen_to_top = solid & reaches_top
     ok &= top - bottom >= np.where(seen_to_top, config.solid_min_span_m, config.min_span_m)
     ok &= top >= np.where(seen_to_top, config.cell_min_top_m, config.min_top_m)
-    ok &= floats <= np.where(solid, np.inf, config.short_max_bottom_m)
+    ok &= (floats <= np.where(solid, np.inf, config.short_max_bottom_m)) | hidden_below
     ok &= reaches_top | (top >= config.tall_m) | ((length >= config.long_m) & (top >= config.long_min_top_m))
     out[members] = np.where(ok[piece], piece, -1)
     return out

@@ -717,8 +717,10 @@ def test_a_short_wall_whose_bottom_is_hidden_by_a_fence_in_front_is_found_with_s
     default it is no wall. Its bottom is hidden (the returns just below it in
     its direction are the fence's, 25 m nearer); under a crown the rays pass. With ``short_hidden_below``
     it is one segment within 5 cm; the crowns beside it, with nothing in front, still float."""
-    trees = [{"kind": "tree", "position": [38.0, 8.0 + 4 * k], "trunk_height": 2.2, "crown_radius": 1.4} for k in range(3)]
-    objects = [building(40, -1.25, 46, 1.25, 6.0), {"kind": "fence", "line": [[15, -1.5], [15, 1.5]], "height": 1.7}, *trees]
+    trees = [{"kind": "tree", "position": [38.0, 8.0 + 4 * k], "trunk_height": 2.2, "crown_radius": 1.4}
+             for k in range(3)]
+    fence = {"kind": "fence", "line": [[15, -1.5], [15, 1.5]], "height": 1.7}
+    objects = [building(40, -1.25, 46, 1.25, 6.0), fence, *trees]
     scan = cast_scan(objects, sensor="vls128", azimuth_step=0.2)
     house = (np.abs(scan[:, 0] - 40) < 0.1) & (np.abs(scan[:, 1]) < 1.2)
     assert scan[house, 2].min() + SENSORS["vls128"].height_m > 1.2     # its lower part is hidden by the fence

@@ -9,7 +9,8 @@ from hypothesis import strategies as st
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from featmap.extraction.vertical_structure import _group_order, _labels, connected_labels, validated_xyz
+from featmap.extraction.vertical_structure import (SEEN_OVER_M, VerticalStructureConfig, _group_order, _hidden_below,
+                                                   _labels, connected_labels, validated_xyz)
 
 
 @settings(max_examples=80, deadline=None)
@@ -258,3 +259,38 @@ def test_short_pieces_and_cells_in_no_piece_are_stray():
     stray = stray_cells(cells, label, VerticalStructureConfig())
     assert stray[-2:].all() and stray[0] and not stray[1:-2].any()
     assert stray_cells(cells, label, VerticalStructureConfig(min_length_m=0.1))[-2:].tolist() == [False, False]
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), m=st.integers(1, 400), n_cells=st.integers(1, 30),
+       step_deg=st.sampled_from([0.1, 0.5, 2.0]))
+def test_hidden_below_is_its_definition(seed, m, n_cells, step_deg):
+    """A cell's bottom is hidden when, in its azimuth bin, the nearest return with an elevation slope in
+    [lowest - band, lowest) (band: 2 beam spacings as tan) lies SEEN_OVER_M nearer than the cell."""
+    rng = np.random.default_rng(seed)
+    config = VerticalStructureConfig(elevation_step_deg=step_deg)
+    width = np.deg2rad(2.0)
+
+    def az_bin(xy):
+        return ((np.arctan2(xy[:, 1], xy[:, 0]) + np.pi) / width).astype(np.int64)
+
+    azimuth = rng.uniform(-0.3, 0.3, m)                       # a few bins only, so windows hold returns
+    ranges = rng.uniform(3.0, 60.0, m)
+    slope = rng.uniform(-0.1, 0.1, m)
+    xyz = np.column_stack([ranges * np.cos(azimuth), ranges * np.sin(azimuth), slope * ranges])
+    point_cell = np.where(rng.random(m) < 0.5, rng.integers(0, n_cells, m), -1)
+    used = np.unique(point_cell[point_cell >= 0])
+    point_cell = np.where(point_cell >= 0, np.searchsorted(used, np.maximum(point_cell, 0)), -1)
+    n = len(used)
+    inside = np.flatnonzero(point_cell >= 0)
+    cell_range = np.array([ranges[point_cell == c].mean() for c in range(n)])
+    cell_xy = np.array([xyz[point_cell == c, :2].mean(axis=0) for c in range(n)]).reshape(-1, 2)
+    cell_bin = az_bin(cell_xy) if n else np.zeros(0, np.int64)
+    got = _hidden_below(xyz, ranges, point_cell, inside, n, cell_range, cell_bin, az_bin, config)
+    band = 2.0 * np.tan(np.deg2rad(step_deg))
+    point_bin = az_bin(xyz[:, :2])
+    for c in range(n):
+        lowest = slope[point_cell == c].min()
+        window = (point_bin == cell_bin[c]) & (slope >= lowest - band) & (slope < lowest)
+        expected = window.any() and ranges[window].min() < cell_range[c] - SEEN_OVER_M
+        assert got[c] == expected, c

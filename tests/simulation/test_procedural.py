@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from shapely.geometry import LineString, Polygon
 
-from featmap.simulation.procedural import (HELDOUT_SEEDS, PROBE_SEEDS, TUNING_SEEDS, drive_settings, generate, generate_world,
-                                           split_seeds)
+from featmap.simulation.procedural import (HELDOUT_SEEDS, PROBE_SEEDS, TUNING_SEEDS, drive_settings, generate,
+                                           generate_world, split_seeds)
 from featmap.simulation.scene import build_scene
 from featmap.simulation.worlds import World, building_edges
 
@@ -28,7 +28,7 @@ def test_same_seed_same_world_and_settings():
 def test_tuning_and_heldout_seeds_are_apart():
     assert len(HELDOUT_SEEDS) >= 8 and len(TUNING_SEEDS) >= 4
     assert not set(TUNING_SEEDS) & set(HELDOUT_SEEDS)
-    assert not set(PROBE_SEEDS) & (set(TUNING_SEEDS) | set(HELDOUT_SEEDS))   # the probes were looked into: never held out
+    assert not set(PROBE_SEEDS) & (set(TUNING_SEEDS) | set(HELDOUT_SEEDS))   # looked into: never held out
     assert split_seeds("heldout") == HELDOUT_SEEDS and split_seeds("tuning") == TUNING_SEEDS
     with pytest.raises(ValueError, match="unknown split"):
         split_seeds("test")
