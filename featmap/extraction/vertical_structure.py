@@ -428,20 +428,16 @@ def _hidden_below(sensor_xyz: np.ndarray, sensor_rng: np.ndarray, point_cell: np
     stride = 2 * lim + band + 1.0
     key = az_bin(sensor_xyz[:, :2]) * stride + np.clip(slope, -lim, lim)
     order = np.argsort(key)
-    key, near = key[order], sensor_rng[order]
+    key = key[order]
+    near = np.append(sensor_rng[order], np.inf)       # (a window may end after the last return)
     top_key = cell_bin * stride + np.clip(lowest, -lim, lim)
     hi = np.searchsorted(key, top_key, side="left")
     lo = np.searchsorted(key, top_key - band, side="left")
-    # The nearest return in each window (windows may be empty); prefix minima do not apply, so a sparse
-    # table would be overkill: the windows hold a few returns each.
+    # The nearest return in each non-empty window near[lo:hi]: reduceat over the pairs (lo, hi).
     out = np.zeros(n, bool)
     has = np.flatnonzero(hi > lo)
     if len(has):
-        counts = hi[has] - lo[has]
-        idx = np.repeat(lo[has], counts) + (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts))
-        owner = np.repeat(np.arange(len(has)), counts)
-        nearest = np.full(len(has), np.inf)
-        np.minimum.at(nearest, owner, near[idx])
+        nearest = np.minimum.reduceat(near, np.column_stack([lo[has], hi[has]]).ravel())[::2]
         out[has] = nearest < cell_range[has] - SEEN_OVER_M
     return out
 
