@@ -294,3 +294,25 @@ def test_hidden_below_is_its_definition(seed, m, n_cells, step_deg):
         window = (point_bin == cell_bin[c]) & (slope >= lowest - band) & (slope < lowest)
         expected = window.any() and ranges[window].min() < cell_range[c] - SEEN_OVER_M
         assert got[c] == expected, c
+
+
+@pytest.mark.parametrize("below_range, below_slope, hidden", [
+    (29.4, 0.045, True),      # 0.6 m nearer, one beam spacing below: hides the cell's bottom
+    (29.7, 0.045, False),     # 0.3 m nearer only (SEEN_OVER_M is 0.5 m): the wall's own lower return
+    (29.4, 0.030, False),     # nearer, but 2.3 beam spacings below: not what hides its bottom
+    (29.4, 0.050, False),     # at the cell's lowest slope: not below it
+    (45.0, 0.045, False),     # farther: the ray passed under the cell (a crown)
+])
+def test_hidden_below_needs_a_return_just_below_and_half_a_metre_nearer(below_range, below_slope, hidden):
+    config = VerticalStructureConfig(elevation_step_deg=0.5)   # band: 2 x tan(0.5 deg) = 0.0175 in slope
+    ranges = np.array([30.0, 30.0, below_range])
+    slope = np.array([0.05, 0.08, below_slope])
+    xyz = np.column_stack([ranges, np.zeros(3), slope * ranges])
+    point_cell = np.array([0, 0, -1])
+
+    def one_bin(xy):
+        return np.zeros(len(xy), np.int64)
+
+    got = _hidden_below(xyz, ranges, point_cell, np.array([0, 1]), 1, np.array([30.0]), np.zeros(1, np.int64),
+                        one_bin, config)
+    assert got.tolist() == [hidden]
