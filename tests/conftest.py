@@ -5,9 +5,13 @@ from __future__ import annotations
 import importlib.util
 import os
 import shutil
+import signal
 from pathlib import Path
 
 import pytest
+
+SIGINT_IGNORED_AT_START = signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+"""The test process itself started with Ctrl-C ignored (e.g. a background job of a non-interactive shell)."""
 
 LOOPBACK_ONLY = Path(__file__).resolve().parent / "loopback_only"
 # Every Python process the tests start imports loopback_only/sitecustomize.py first and talks to 127.0.0.1 only.
