@@ -82,8 +82,8 @@ wall's points away. One pass, no randomness:
    (``short_max_bottom_m``: a crown floats), unless, with ``short_hidden_below`` (off by default; measured
    in ``docs/results.md``), their bottom is hidden by something in front: in at least half of their cells,
    the nearest return up to 2 beam spacings below the lowest one, in its direction, lies 0.5 m nearer (a
-   house front seen over a hedge or a car; rays pass under a crown). The spread of the scan's long walls (their median rms;
-   not those joined from single columns, whose noise lies along them) bounds everyone's:
+   house front seen over a hedge or a car; rays pass under a crown). The spread of the scan's long walls
+   (their median rms; not those joined from single columns, whose noise lies along them) bounds everyone's:
    ``short_rms_factor`` times it for short pieces (a crown's facets, a wall merged with a crown in
    line with it, are thicker than the scan's walls), and ``solid_rms_factor`` times that of the long
    walls seen within ``NOISE_MAX_INCIDENCE_DEG`` of head-on (when there are 3: the sensor's noise; else
