@@ -79,8 +79,8 @@ wall's points away. One pass, no randomness:
    in front of it), may be seen over a narrow band when they stop the top beam (``solid_min_span_m``:
    a facade behind a hedge, or up a slope under the beam), and may have few returns
    (``solid_min_points``). *Shorter pieces* must reach down near the ground
-   (``short_max_bottom_m``: a crown floats), unless, with ``short_hidden_below`` (off by default; measured
-   in ``docs/results.md``), their bottom is hidden by something in front: in at least half of their cells,
+   (``short_max_bottom_m``: a crown floats), unless (``short_hidden_below``, adopted 2026-12-04 as version 11;
+   measured in ``docs/results.md``) their bottom is hidden by something in front: in at least half of their cells,
    the nearest return up to 2 beam spacings below the lowest one, in its direction, lies 0.5 m nearer (a
    house front seen over a hedge or a car; rays pass under a crown). The spread of the scan's long walls
    (their median rms; not those joined from single columns, whose noise lies along them) bounds everyone's:
@@ -180,7 +180,7 @@ class VerticalStructureConfig(Section):
     solid_min_points: int = Field(20, ge=2, description="... needs this many returns (fewer: sparse far walls) ...")
     solid_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls seen within 60 deg of head-on do (their median, when there are 3: the sensor's noise; else all long walls')")
     short_max_bottom_m: float = Field(1.0, ge=0, description="a shorter piece reaches down to this height above the ground (plus one of the scan's beam spacings at its range): a tree crown floats ...")
-    short_hidden_below: bool = Field(False, description="... unless its bottom is hidden by something in front (in at least half of its cells, the nearest return up to 2 beam spacings below the lowest one, in its direction, lies 0.5 m nearer: a wall seen over a hedge or a car, not a crown, under which the rays pass)")
+    short_hidden_below: bool = Field(True, description="... unless its bottom is hidden by something in front (in at least half of its cells, the nearest return up to 2 beam spacings below the lowest one, in its direction, lies 0.5 m nearer: a wall seen over a hedge or a car, not a crown, under which the rays pass)")
     short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do")
     extend_hidden_m: float = Field(3.0, ge=0, description="a wall goes on past its ends, up to this far along its line, over its low returns whose column is hidden above by something in front (a bush before a garden wall; 0 = off)")
 
@@ -399,26 +399,29 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
     np.maximum.at(slope, c, sz / np.maximum(rng, 1e-9))
     cell_range = np.hypot(centroid[:, 0], centroid[:, 1])
     margin = np.maximum(config.envelope_margin_m, cell_range * np.tan(np.deg2rad(config.envelope_margin_deg)))
-    over_slope, over_range, top_range, az_bin = highest_returns(sensor_xyz, tan_top, config, sensor_rng)
+    return_slope = sensor_xyz[:, 2] / np.maximum(sensor_rng, 1e-9)
+    over_slope, over_range, top_range, az_bin = highest_returns(sensor_xyz, tan_top, config, sensor_rng,
+                                                                return_slope)
     b = az_bin(centroid)
     seen_over = (over_slope[b] > slope + 1e-4) & (over_range[b] > cell_range + SEEN_OVER_M)
     reaches = (reach >= -margin) & ~seen_over & (cell_range >= reach_from_m)
     hidden = ~reaches & (top_range[b] < cell_range - SEEN_OVER_M)
-    below = (_hidden_below(sensor_xyz, sensor_rng, point_cell, inside, n, cell_range, b, az_bin, config)
+    below = (_hidden_below(sensor_xyz, sensor_rng, return_slope, point_cell, inside, n, cell_range, b, az_bin,
+                           config)
              if config.short_hidden_below else None)
     return Cells(point_cell, count, centroid, scatter, top[candidate], bottom, reaches, hidden,
                  grid_keys, grid_counts, (config.cell_m, i0, j0, width), below)
 
 
-def _hidden_below(sensor_xyz: np.ndarray, sensor_rng: np.ndarray, point_cell: np.ndarray, inside: np.ndarray,
-                  n: int, cell_range: np.ndarray, cell_bin: np.ndarray, az_bin, config: VerticalStructureConfig
+def _hidden_below(sensor_xyz: np.ndarray, sensor_rng: np.ndarray, slope: np.ndarray, point_cell: np.ndarray,
+                  inside: np.ndarray, n: int, cell_range: np.ndarray, cell_bin: np.ndarray, az_bin, config: VerticalStructureConfig
                   ) -> np.ndarray:
     """(n,) the cells whose bottom is hidden: in their azimuth bin (``az_bin``, ``cell_bin`` (n,)), the
     nearest return at most ``HIDDEN_BELOW_BEAMS`` beam spacings (in tan(elevation)) below the cell's lowest
     one lies ``SEEN_OVER_M`` nearer than the cell (``cell_range`` (n,): its centroid's horizontal range).
-    ``sensor_xyz`` (M, 3) and ``sensor_rng`` (M,): the non-ground returns in the sensor's frame;
-    ``point_cell`` (M,) their candidate cell (-1: none); ``inside``: the indices of those in one."""
-    slope = sensor_xyz[:, 2] / np.maximum(sensor_rng, 1e-9)
+    ``sensor_xyz`` (M, 3) and ``sensor_rng`` (M,): the non-ground returns in the sensor's frame, ``slope``
+    (M,) their z / range; ``point_cell`` (M,) their candidate cell (-1: none); ``inside``: the indices of
+    those in one."""
     lowest = np.full(n, np.inf)
     np.minimum.at(lowest, point_cell[inside], slope[inside])
     # Returns sorted by (bin, slope): each cell's window of slopes below its lowest is one slice. The
@@ -459,15 +462,16 @@ def continuous_tops(cell: np.ndarray, height: np.ndarray, n: int, gap: np.ndarra
     return top
 
 
-def highest_returns(xyz: np.ndarray, tan_top: float, config: VerticalStructureConfig, rng: np.ndarray | None = None):
+def highest_returns(xyz: np.ndarray, tan_top: float, config: VerticalStructureConfig, rng: np.ndarray | None = None,
+                    slope: np.ndarray | None = None):
     """The highest return in each ``link_azimuth_deg / 2`` azimuth bin, among returns near the top beam.
 
     Returns (slope (B,) largest z / range per bin (-inf: none), range (B,) of that return, range (B,)
     of the nearest return of the top beam (within ``TOP_BEAM_DEG``; inf: none), a function mapping
     (K, 2) x, y to their bin numbers (K,)). A structure whose bin holds a higher return farther away
     does not stop the top beams: the sensor sees over it (a van, a hedge, a garden wall); one whose
-    top beam stopped nearer is hidden above (its top is not seen). ``rng`` (N,): the (N, 3) returns'
-    horizontal ranges, if already known.
+    top beam stopped nearer is hidden above (its top is not seen). ``rng`` (N,) and ``slope`` (N,): the
+    (N, 3) returns' horizontal ranges and z / range, if already known.
     """
     width = np.deg2rad(config.link_azimuth_deg) / 2
     n_bins = int(np.ceil(2 * np.pi / width))
@@ -476,7 +480,7 @@ def highest_returns(xyz: np.ndarray, tan_top: float, config: VerticalStructureCo
         return np.minimum(((np.arctan2(xy[:, 1], xy[:, 0]) + np.pi) / width).astype(np.int64), n_bins - 1)
 
     rng = np.hypot(xyz[:, 0], xyz[:, 1]) if rng is None else rng
-    slope = xyz[:, 2] / np.maximum(rng, 1e-9)
+    slope = xyz[:, 2] / np.maximum(rng, 1e-9) if slope is None else slope
     high = np.flatnonzero(slope >= np.tan(np.arctan(tan_top) - np.deg2rad(2.0)))
     bins = az_bin(xyz[high, :2])
     best = np.full(n_bins, -np.inf)
@@ -1921,4 +1925,4 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
 
 
 EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,
-                      extract=extract_vertical_structure, version=10)
+                      extract=extract_vertical_structure, version=11)

@@ -713,9 +713,9 @@ def test_three_walls_joined_over_overlaps_keep_the_gap_none_of_them_covers():
 
 def test_a_short_wall_whose_bottom_is_hidden_by_a_fence_in_front_is_found_with_short_hidden_below():
     """A 2.5 m house front 40 m away behind a 3 m long, 1.7 m high fence at 15 m is seen from 1.7 m up (the
-    ground beside it is seen, so it stands 1.3 m above it): a short piece that floats like a crown, so by
-    default it is no wall. Its bottom is hidden (the returns just below it in
-    its direction are the fence's, 25 m nearer); under a crown the rays pass. With ``short_hidden_below``
+    ground beside it is seen, so it stands 1.3 m above it): a short piece that floats like a crown, so
+    without ``short_hidden_below`` it is no wall. Its bottom is hidden (the returns just below it in
+    its direction are the fence's, 25 m nearer); under a crown the rays pass. By default (the setting on)
     it is one segment within 5 cm; the crowns beside it, with nothing in front, still float."""
     trees = [{"kind": "tree", "position": [38.0, 8.0 + 4 * k], "trunk_height": 2.2, "crown_radius": 1.4}
              for k in range(3)]
@@ -724,8 +724,9 @@ def test_a_short_wall_whose_bottom_is_hidden_by_a_fence_in_front_is_found_with_s
     scan = cast_scan(objects, sensor="vls128", azimuth_step=0.2)
     house = (np.abs(scan[:, 0] - 40) < 0.1) & (np.abs(scan[:, 1]) < 1.2)
     assert scan[house, 2].min() + SENSORS["vls128"].height_m > 1.2     # its lower part is hidden by the fence
-    assert not any(on_line(s, [40, -1.25], [40, 1.25], 0.1) for s in extract_vertical_structure(scan).segments)
-    result = extract_vertical_structure(scan, VerticalStructureConfig(short_hidden_below=True))
+    off = extract_vertical_structure(scan, VerticalStructureConfig(short_hidden_below=False))
+    assert not any(on_line(s, [40, -1.25], [40, 1.25], 0.1) for s in off.segments)
+    result = extract_vertical_structure(scan)
     front = [s for s in result.segments if on_line(s, [40, -1.25], [40, 1.25], 0.05)]
     assert len(front) == 1 and abs(front[0][3] - front[0][1]) > 2.0
     for seg in result.segments:                                   # nothing on the crowns or the fence

@@ -286,7 +286,7 @@ def test_hidden_below_is_its_definition(seed, m, n_cells, step_deg):
     cell_range = np.array([ranges[point_cell == c].mean() for c in range(n)])
     cell_xy = np.array([xyz[point_cell == c, :2].mean(axis=0) for c in range(n)]).reshape(-1, 2)
     cell_bin = az_bin(cell_xy) if n else np.zeros(0, np.int64)
-    got = _hidden_below(xyz, ranges, point_cell, inside, n, cell_range, cell_bin, az_bin, config)
+    got = _hidden_below(xyz, ranges, xyz[:, 2] / ranges, point_cell, inside, n, cell_range, cell_bin, az_bin, config)
     band = 2.0 * np.tan(np.deg2rad(step_deg))
     point_bin = az_bin(xyz[:, :2])
     for c in range(n):
@@ -313,6 +313,6 @@ def test_hidden_below_needs_a_return_just_below_and_half_a_metre_nearer(below_ra
     def one_bin(xy):
         return np.zeros(len(xy), np.int64)
 
-    got = _hidden_below(xyz, ranges, point_cell, np.array([0, 1]), 1, np.array([30.0]), np.zeros(1, np.int64),
-                        one_bin, config)
+    got = _hidden_below(xyz, ranges, xyz[:, 2] / ranges, point_cell, np.array([0, 1]), 1, np.array([30.0]),
+                        np.zeros(1, np.int64), one_bin, config)
     assert got.tolist() == [hidden]
