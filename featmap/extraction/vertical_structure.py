@@ -414,8 +414,8 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
 
 
 def _hidden_below(sensor_xyz: np.ndarray, sensor_rng: np.ndarray, slope: np.ndarray, point_cell: np.ndarray,
-                  inside: np.ndarray, n: int, cell_range: np.ndarray, cell_bin: np.ndarray, az_bin, config: VerticalStructureConfig
-                  ) -> np.ndarray:
+                  inside: np.ndarray, n: int, cell_range: np.ndarray, cell_bin: np.ndarray, az_bin,
+                  config: VerticalStructureConfig) -> np.ndarray:
     """(n,) the cells whose bottom is hidden: in their azimuth bin (``az_bin``, ``cell_bin`` (n,)), the
     nearest return at most ``HIDDEN_BELOW_BEAMS`` beam spacings (in tan(elevation)) below the cell's lowest
     one lies ``SEEN_OVER_M`` nearer than the cell (``cell_range`` (n,): its centroid's horizontal range).
