@@ -3,6 +3,7 @@
     .venv/bin/python scripts/refresh_figures.py --changed extraction_3d [--dry-run]
     .venv/bin/python scripts/refresh_figures.py --changed all --skip online_heldout
     .venv/bin/python scripts/refresh_figures.py --only real_scans footprints
+    .venv/bin/python scripts/refresh_figures.py --only footprints --force     # again, on unchanged code
 
 A change to what the figures measure (``--changed``: extraction_3d, extraction_2d, fusion, refinement,
 evaluation, simulation, speed, or all) selects the steps that measure it. Each step is one command, the
@@ -14,6 +15,8 @@ set. Its output goes to ``data/refresh_figures/<step>.log``.
 A step that finished is recorded in ``data/refresh_figures/state.json`` with a digest of the code the
 figures come from (every file under featmap/, configs/, benchmarks/ and scripts/): run again after an interruption, the script
 skips the steps already done for that code and starts the others; any edit there starts them all again.
+``--force`` runs the selected steps even when they were done for this code (to time a step again on an
+idle machine, say); the others stay recorded.
 A step whose data is missing (the shared real scans and logs) is reported as not run, never counted as
 done. A failing step stops the script (exit 1) with the name of its log. At the end,
 ``scripts/doc_blocks.py`` copies the blocks into the README, and the benchmarks whose figures are written
@@ -175,10 +178,14 @@ def shared_root() -> Path | None:
 
 
 def run_steps(steps: list[Step], python: str, state_dir: Path, digest: str, shared: Path | None,
-              print_line=print) -> list[tuple[str, str, float]]:
-    """Run the steps not yet done for ``digest``; returns (name, outcome, seconds) per step. Stops at a failure."""
+              print_line=print, force: bool = False) -> list[tuple[str, str, float]]:
+    """Run the steps not yet done for ``digest`` (with ``force``, every one of ``steps``); returns (name,
+    outcome, seconds) per step. Stops at a failure."""
     state_path = state_dir / "state.json"
     done = load_state(state_path, digest)
+    if force:                       # forgotten until they finish again (an interrupted forced run resumes)
+        done = {name: v for name, v in done.items() if name not in {s.name for s in steps}}
+        save_state(state_path, digest, done)
     outcomes = []
     for k, step in enumerate(steps, start=1):
         if step.name in done:
@@ -211,6 +218,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="what the change touched: the steps that measure it run")
     parser.add_argument("--only", nargs="+", help="run these steps (by name) instead")
     parser.add_argument("--skip", nargs="+", default=[], help="leave these steps out")
+    parser.add_argument("--force", action="store_true",
+                        help="run the selected steps even if they were done for this code")
     parser.add_argument("--dry-run", action="store_true", help="print the plan and stop")
     args = parser.parse_args(argv)
     if not args.changed and not args.only:
@@ -222,12 +231,12 @@ def main(argv: list[str] | None = None) -> int:
     digest, shared = code_digest(), shared_root()
     done = load_state(STATE_DIR / "state.json", digest)
     for step in steps:
-        status = ("done for this code" if step.name in done else
+        status = ("done for this code" if step.name in done and not args.force else
                   "no shared data: will not run" if step.shared and shared is None else "to run")
         print(f"{step.name:24s} {status:28s} {' '.join(step.args)}  ->  {', '.join(step.blocks)} {step.figures}")
     if args.dry_run:
         return 0
-    outcomes = run_steps(steps, sys.executable, STATE_DIR, digest, shared)
+    outcomes = run_steps(steps, sys.executable, STATE_DIR, digest, shared, force=args.force)
     failed = any(o.startswith("FAILED") for _, o, _ in outcomes)
     if not failed:
         subprocess.run([sys.executable, "scripts/doc_blocks.py"], cwd=ROOT, check=True)

@@ -66,6 +66,21 @@ def test_a_resumed_run_skips_what_was_done_for_the_same_code(rf, tmp_path):
     assert (marks / "a").read_text() == "xx"
 
 
+def test_force_runs_the_selected_steps_again_on_the_same_code_and_keeps_the_others(rf, tmp_path):
+    marks = tmp_path / "marks"
+    marks.mkdir()
+    steps = [_fake(rf, name, f"open(r'{marks / name}', 'a').write('x')") for name in ("a", "b")]
+    state = tmp_path / "state"
+    rf.run_steps(steps, sys.executable, state, "code1", None, print_line=lambda _: None)
+
+    outcomes = rf.run_steps(steps[1:], sys.executable, state, "code1", None, print_line=lambda _: None, force=True)
+    assert [(n, o) for n, o, _ in outcomes] == [("b", "ran")]
+    assert (marks / "a").read_text() == "x" and (marks / "b").read_text() == "xx"
+    assert set(rf.load_state(state / "state.json", "code1")) == {"a", "b"}      # a stays recorded
+    outcomes = rf.run_steps(steps, sys.executable, state, "code1", None, print_line=lambda _: None)
+    assert [o for _, o, _ in outcomes] == ["done before", "done before"]
+
+
 def test_a_step_without_its_data_is_not_run_and_not_counted_done(rf, tmp_path):
     step = _fake(rf, "real", "raise SystemExit(0)", shared=True)
     for _ in range(2):
