@@ -69,6 +69,10 @@ wall's points away. One pass, no randomness:
    a tree crown over a fence does not lift it, nor when street trees hide the top of the rest of the
    fence. A facade at 20 m is seen only up to ~2.5 m by an HDL-64 (upper beam +2 deg),
    but it stops the top beam; a 1.5 m car never does, nor does a 2 m van at 11 m.
+   With ``cut_above_counts_as_tall`` (off by default; measured 2026-12-04 in ``docs/results.md``) a
+   fourth way: its top is cut by something well in front (in at least half of its cells, the nearest
+   return up to 2 beam spacings above the highest one, in its direction, lies 0.5 m and
+   ``cut_above_max_ratio`` of its range nearer: a wall seen under a tree crown or behind a nearer roof).
    A piece whose returns leave gaps (columns of a far wall seen at grazing incidence, metres apart)
    must be straight in each column (``sparse_curve_factor``) and its columns must lie on one line
    (``sparse_offset_factor``), which lets ``link_grazing_deg`` reach 87 deg (with
@@ -181,6 +185,8 @@ class VerticalStructureConfig(Section):
     solid_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls seen within 60 deg of head-on do (their median, when there are 3: the sensor's noise; else all long walls')")
     short_max_bottom_m: float = Field(1.0, ge=0, description="a shorter piece reaches down to this height above the ground (plus one of the scan's beam spacings at its range): a tree crown floats ...")
     short_hidden_below: bool = Field(True, description="... unless its bottom is hidden by something in front (in at least half of its cells, the nearest return up to 2 beam spacings below the lowest one, in its direction, lies 0.5 m nearer: a wall seen over a hedge or a car, not a crown, under which the rays pass)")
+    cut_above_counts_as_tall: bool = Field(False, description="a piece whose top is hidden just above by something in front (in at least half of its cells, the nearest return up to 2 beam spacings above the highest one, in its direction, lies 0.5 m nearer: a wall seen under a tree crown or behind a nearer roof) passes the height test as if it reached the top beam (its top is not seen; a car or hedge under a crown's base is rarely cut exactly at its top)")
+    cut_above_max_ratio: float = Field(0.8, gt=0, le=1, description="... the return cutting its top lies at most this share of the piece's range away (a crown or roof well in front, not the near end of the same van seen obliquely)")
     short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do")
     extend_hidden_m: float = Field(3.0, ge=0, description="a wall goes on past its ends, up to this far along its line, over its low returns whose column is hidden above by something in front (a bush before a garden wall; 0 = off)")
 
@@ -305,6 +311,9 @@ class Cells:
         hidden_below: (C,) the nearest return up to ``HIDDEN_BELOW_BEAMS`` beam spacings below the cell's
             lowest one, in its azimuth bin, lies ``SEEN_OVER_M`` nearer: its bottom is not seen (None unless
             ``short_hidden_below``).
+        cut_above: (C,) the nearest return up to ``HIDDEN_BELOW_BEAMS`` beam spacings above the cell's highest
+            one, in its azimuth bin, lies ``SEEN_OVER_M`` nearer: its top is cut by something in front (None
+            unless ``cut_above_counts_as_tall``).
         grid_keys, grid_counts, grid_origin: every cell (sorted keys) with non-ground points at most
             ``BEHIND_MAX_HEIGHT_M`` high, and how many, to count such points anywhere (``points_at``).
     """
@@ -321,6 +330,7 @@ class Cells:
     grid_counts: np.ndarray
     grid_origin: tuple
     hidden_below: np.ndarray | None = None
+    cut_above: np.ndarray | None = None
 
     def points_at(self, xy: np.ndarray) -> np.ndarray:
         """(K,) low non-ground points in the ``cell_m`` cell under each (K, 2) position."""
@@ -406,25 +416,29 @@ def structure_cells(xyz: np.ndarray, height: np.ndarray, tan_top: float, config:
     seen_over = (over_slope[b] > slope + 1e-4) & (over_range[b] > cell_range + SEEN_OVER_M)
     reaches = (reach >= -margin) & ~seen_over & (cell_range >= reach_from_m)
     hidden = ~reaches & (top_range[b] < cell_range - SEEN_OVER_M)
-    below = (_hidden_below(sensor_xyz, sensor_rng, return_slope, point_cell, inside, n, cell_range, b, az_bin,
-                           config)
+    below = (_hidden_next_to(sensor_xyz, sensor_rng, return_slope, point_cell, inside, n, cell_range, b, az_bin,
+                             config, above=False)
              if config.short_hidden_below else None)
+    cut = (_hidden_next_to(sensor_xyz, sensor_rng, return_slope, point_cell, inside, n, cell_range, b, az_bin,
+                           config, above=True, max_ratio=config.cut_above_max_ratio)
+           if config.cut_above_counts_as_tall else None)
     return Cells(point_cell, count, centroid, scatter, top[candidate], bottom, reaches, hidden,
-                 grid_keys, grid_counts, (config.cell_m, i0, j0, width), below)
+                 grid_keys, grid_counts, (config.cell_m, i0, j0, width), below, cut)
 
 
-def _hidden_below(sensor_xyz: np.ndarray, sensor_rng: np.ndarray, slope: np.ndarray, point_cell: np.ndarray,
-                  inside: np.ndarray, n: int, cell_range: np.ndarray, cell_bin: np.ndarray, az_bin,
-                  config: VerticalStructureConfig) -> np.ndarray:
-    """(n,) the cells whose bottom is hidden: in their azimuth bin (``az_bin``, ``cell_bin`` (n,)), the
-    nearest return at most ``HIDDEN_BELOW_BEAMS`` beam spacings (in tan(elevation)) below the cell's lowest
-    one lies ``SEEN_OVER_M`` nearer than the cell (``cell_range`` (n,): its centroid's horizontal range).
+def _hidden_next_to(sensor_xyz: np.ndarray, sensor_rng: np.ndarray, slope: np.ndarray, point_cell: np.ndarray,
+                    inside: np.ndarray, n: int, cell_range: np.ndarray, cell_bin: np.ndarray, az_bin,
+                    config: VerticalStructureConfig, above: bool, max_ratio: float = 1.0) -> np.ndarray:
+    """(n,) the cells whose bottom (``above`` False) or top (``above`` True) is hidden: in their azimuth bin
+    (``az_bin``, ``cell_bin`` (n,)), the nearest return at most ``HIDDEN_BELOW_BEAMS`` beam spacings (in
+    tan(elevation)) below the cell's lowest return (above its highest) lies ``SEEN_OVER_M`` nearer than the
+    cell (``cell_range`` (n,): its centroid's horizontal range) and at most ``max_ratio`` of its range away.
     ``sensor_xyz`` (M, 3) and ``sensor_rng`` (M,): the non-ground returns in the sensor's frame, ``slope``
     (M,) their z / range; ``point_cell`` (M,) their candidate cell (-1: none); ``inside``: the indices of
     those in one."""
-    lowest = np.full(n, np.inf)
-    np.minimum.at(lowest, point_cell[inside], slope[inside])
-    # Returns sorted by (bin, slope): each cell's window of slopes below its lowest is one slice. The
+    edge = np.full(n, -np.inf if above else np.inf)
+    (np.maximum if above else np.minimum).at(edge, point_cell[inside], slope[inside])
+    # Returns sorted by (bin, slope): each cell's window of slopes next to its edge is one slice. The
     # stride between bins exceeds the slopes' span plus the window, so no window reaches into the next bin.
     band = HIDDEN_BELOW_BEAMS * np.tan(np.deg2rad(config.elevation_step_deg))
     lim = 1e3                                   # |slope| beyond it: within 0.06 deg of straight up or down
@@ -433,15 +447,19 @@ def _hidden_below(sensor_xyz: np.ndarray, sensor_rng: np.ndarray, slope: np.ndar
     order = np.argsort(key)
     key = key[order]
     near = np.append(sensor_rng[order], np.inf)       # (a window may end after the last return)
-    top_key = cell_bin * stride + np.clip(lowest, -lim, lim)
-    hi = np.searchsorted(key, top_key, side="left")
-    lo = np.searchsorted(key, top_key - band, side="left")
+    edge_key = cell_bin * stride + np.clip(edge, -lim, lim)
+    if above:                                   # the window (highest, highest + band]
+        lo = np.searchsorted(key, edge_key, side="right")
+        hi = np.searchsorted(key, edge_key + band, side="right")
+    else:                                       # the window [lowest - band, lowest)
+        hi = np.searchsorted(key, edge_key, side="left")
+        lo = np.searchsorted(key, edge_key - band, side="left")
     # The nearest return in each non-empty window near[lo:hi]: reduceat over the pairs (lo, hi).
     out = np.zeros(n, bool)
     has = np.flatnonzero(hi > lo)
     if len(has):
         nearest = np.minimum.reduceat(near, np.column_stack([lo[has], hi[has]]).ravel())[::2]
-        out[has] = nearest < cell_range[has] - SEEN_OVER_M
+        out[has] = nearest < np.minimum(cell_range[has] - SEEN_OVER_M, max_ratio * cell_range[has])
     return out
 
 
@@ -1155,6 +1173,10 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     # cells (cells, not columns) may float: rays pass under a crown, not under a wall seen over a hedge.
     hidden_below = (np.zeros(n, bool) if cells.hidden_below is None else
                     np.bincount(piece, cells.hidden_below[members], n) >= 0.5 * np.bincount(piece, minlength=n))
+    # With cut_above_counts_as_tall, a piece whose top is cut by something in front in at least half of its
+    # cells is as tall as the sensor can tell, like one that reaches the top beam.
+    cut_above = (np.zeros(n, bool) if cells.cut_above is None else
+                 np.bincount(piece, cells.cut_above[members], n) >= 0.5 * np.bincount(piece, minlength=n))
     length = np.hypot(*(b - a).T)
     solid = length >= config.solid_length_m
     ok = (count >= np.where(solid, config.solid_min_points, config.min_points)) & (length >= config.min_length_m)
@@ -1165,7 +1187,8 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     ok &= top - bottom >= np.where(seen_to_top, config.solid_min_span_m, config.min_span_m)
     ok &= top >= np.where(seen_to_top, config.cell_min_top_m, config.min_top_m)
     ok &= (floats <= np.where(solid, np.inf, config.short_max_bottom_m)) | hidden_below
-    ok &= reaches_top | (top >= config.tall_m) | ((length >= config.long_m) & (top >= config.long_min_top_m))
+    ok &= (reaches_top | cut_above | (top >= config.tall_m)
+           | ((length >= config.long_m) & (top >= config.long_min_top_m)))
     out[members] = np.where(ok[piece], piece, -1)
     return out
 

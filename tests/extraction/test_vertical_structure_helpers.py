@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from featmap.extraction.vertical_structure import (SEEN_OVER_M, VerticalStructureConfig, _group_order, _hidden_below,
+from featmap.extraction.vertical_structure import (SEEN_OVER_M, VerticalStructureConfig, _group_order, _hidden_next_to,
                                                    _labels, connected_labels, validated_xyz)
 
 
@@ -263,10 +263,11 @@ def test_short_pieces_and_cells_in_no_piece_are_stray():
 
 @settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), m=st.integers(1, 400), n_cells=st.integers(1, 30),
-       step_deg=st.sampled_from([0.1, 0.5, 2.0]))
-def test_hidden_below_is_its_definition(seed, m, n_cells, step_deg):
+       step_deg=st.sampled_from([0.1, 0.5, 2.0]), above=st.booleans())
+def test_hidden_below_and_cut_above_are_their_definitions(seed, m, n_cells, step_deg, above):
     """A cell's bottom is hidden when, in its azimuth bin, the nearest return with an elevation slope in
-    [lowest - band, lowest) (band: 2 beam spacings as tan) lies SEEN_OVER_M nearer than the cell."""
+    [lowest - band, lowest) (band: 2 beam spacings as tan) lies SEEN_OVER_M nearer than the cell; its top is
+    cut (``above``) when the nearest return with a slope in (highest, highest + band] does."""
     rng = np.random.default_rng(seed)
     config = VerticalStructureConfig(elevation_step_deg=step_deg)
     width = np.deg2rad(2.0)
@@ -286,33 +287,47 @@ def test_hidden_below_is_its_definition(seed, m, n_cells, step_deg):
     cell_range = np.array([ranges[point_cell == c].mean() for c in range(n)])
     cell_xy = np.array([xyz[point_cell == c, :2].mean(axis=0) for c in range(n)]).reshape(-1, 2)
     cell_bin = az_bin(cell_xy) if n else np.zeros(0, np.int64)
-    got = _hidden_below(xyz, ranges, xyz[:, 2] / ranges, point_cell, inside, n, cell_range, cell_bin, az_bin, config)
+    got = _hidden_next_to(xyz, ranges, xyz[:, 2] / ranges, point_cell, inside, n, cell_range, cell_bin, az_bin,
+                          config, above=above)
     band = 2.0 * np.tan(np.deg2rad(step_deg))
     point_bin = az_bin(xyz[:, :2])
     for c in range(n):
-        lowest = slope[point_cell == c].min()
-        window = (point_bin == cell_bin[c]) & (slope >= lowest - band) & (slope < lowest)
+        if above:
+            highest = slope[point_cell == c].max()
+            window = (point_bin == cell_bin[c]) & (slope > highest) & (slope <= highest + band)
+        else:
+            lowest = slope[point_cell == c].min()
+            window = (point_bin == cell_bin[c]) & (slope >= lowest - band) & (slope < lowest)
         expected = window.any() and ranges[window].min() < cell_range[c] - SEEN_OVER_M
         assert got[c] == expected, c
 
 
-@pytest.mark.parametrize("below_range, below_slope, hidden", [
-    (29.4, 0.045, True),      # 0.6 m nearer, one beam spacing below: hides the cell's bottom
-    (29.7, 0.045, False),     # 0.3 m nearer only (SEEN_OVER_M is 0.5 m): the wall's own lower return
-    (29.4, 0.030, False),     # nearer, but 2.3 beam spacings below: not what hides its bottom
-    (29.4, 0.050, False),     # at the cell's lowest slope: not below it
-    (45.0, 0.045, False),     # farther: the ray passed under the cell (a crown)
+@pytest.mark.parametrize("above, other_range, other_slope, hidden", [
+    (False, 29.4, 0.045, True),    # 0.6 m nearer, one beam spacing below: hides the cell's bottom
+    (False, 29.7, 0.045, False),   # 0.3 m nearer only (SEEN_OVER_M is 0.5 m): the wall's own lower return
+    (False, 29.4, 0.030, False),   # nearer, but 2.3 beam spacings below: not what hides its bottom
+    (False, 29.4, 0.050, False),   # at the cell's lowest slope: not below it
+    (False, 45.0, 0.045, False),   # farther: the ray passed under the cell (a crown)
+    (True, 29.4, 0.085, True),     # 0.6 m nearer, just above its highest return: a crown in front cuts its top
+    (True, 29.7, 0.085, False),    # 0.3 m nearer only: the wall's own upper return
+    (True, 29.4, 0.100, False),    # nearer, but more than 2 beam spacings above
+    (True, 29.4, 0.080, False),    # at the cell's highest slope: not above it
+    (True, 45.0, 0.085, False),    # farther: the ray passed over the cell (its top is seen)
 ])
-def test_hidden_below_needs_a_return_just_below_and_half_a_metre_nearer(below_range, below_slope, hidden):
+def test_a_hidden_edge_needs_a_return_just_beyond_it_and_half_a_metre_nearer(above, other_range, other_slope, hidden):
     config = VerticalStructureConfig(elevation_step_deg=0.5)   # band: 2 x tan(0.5 deg) = 0.0175 in slope
-    ranges = np.array([30.0, 30.0, below_range])
-    slope = np.array([0.05, 0.08, below_slope])
+    ranges = np.array([30.0, 30.0, other_range])
+    slope = np.array([0.05, 0.08, other_slope])
     xyz = np.column_stack([ranges, np.zeros(3), slope * ranges])
     point_cell = np.array([0, 0, -1])
 
     def one_bin(xy):
         return np.zeros(len(xy), np.int64)
 
-    got = _hidden_below(xyz, ranges, xyz[:, 2] / ranges, point_cell, np.array([0, 1]), 1, np.array([30.0]),
-                        np.zeros(1, np.int64), one_bin, config)
+    got = _hidden_next_to(xyz, ranges, xyz[:, 2] / ranges, point_cell, np.array([0, 1]), 1, np.array([30.0]),
+                          np.zeros(1, np.int64), one_bin, config, above=above)
     assert got.tolist() == [hidden]
+    if above and hidden:      # ... and at most max_ratio of the cell's range away (29.4 m is 0.98 of 30 m)
+        assert not _hidden_next_to(xyz, ranges, xyz[:, 2] / ranges, point_cell, np.array([0, 1]), 1,
+                                   np.array([30.0]), np.zeros(1, np.int64), one_bin, config, above=True,
+                                   max_ratio=0.8).any()
