@@ -217,7 +217,8 @@ this share of its columns (else over all its columns)."""
 SEEN_OVER_M = 0.5
 """A return this much farther away than a structure, and higher, was seen over it (metres)."""
 HIDDEN_BELOW_BEAMS = 2.0
-"""How far below a cell's lowest return (in beam spacings) a nearer return hides its bottom (``short_hidden_below``)."""
+"""How far below a cell's lowest return (in beam spacings) a nearer return hides its bottom (``short_hidden_below``),
+and how far above its highest one a nearer return cuts its top (``cut_above_counts_as_tall``)."""
 CORNER_MIN_DEG = 45.0
 """Two pieces whose directions differ at least this much meet at a corner (degrees): see :func:`rejoin_corner_cells`."""
 
@@ -312,8 +313,8 @@ class Cells:
             lowest one, in its azimuth bin, lies ``SEEN_OVER_M`` nearer: its bottom is not seen (None unless
             ``short_hidden_below``).
         cut_above: (C,) the nearest return up to ``HIDDEN_BELOW_BEAMS`` beam spacings above the cell's highest
-            one, in its azimuth bin, lies ``SEEN_OVER_M`` nearer: its top is cut by something in front (None
-            unless ``cut_above_counts_as_tall``).
+            one, in its azimuth bin, lies ``SEEN_OVER_M`` nearer and at most ``cut_above_max_ratio`` of its range
+            away: its top is cut by something in front (None unless ``cut_above_counts_as_tall``).
         grid_keys, grid_counts, grid_origin: every cell (sorted keys) with non-ground points at most
             ``BEHIND_MAX_HEIGHT_M`` high, and how many, to count such points anywhere (``points_at``).
     """
