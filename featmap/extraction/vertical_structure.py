@@ -69,7 +69,7 @@ wall's points away. One pass, no randomness:
    a tree crown over a fence does not lift it, nor when street trees hide the top of the rest of the
    fence. A facade at 20 m is seen only up to ~2.5 m by an HDL-64 (upper beam +2 deg),
    but it stops the top beam; a 1.5 m car never does, nor does a 2 m van at 11 m.
-   With ``cut_above_counts_as_tall`` (off by default; measured 2026-12-04 in ``docs/results.md``) a
+   With ``cut_above_counts_as_tall`` (adopted 2026-12-04 as version 12; measured in ``docs/results.md``) a
    fourth way: its top is cut by something well in front (in at least half of its cells, the nearest
    return up to 2 beam spacings above the highest one, in its direction, lies 0.5 m and
    ``cut_above_max_ratio`` of its range nearer: a wall seen under a tree crown or behind a nearer roof).
@@ -185,7 +185,7 @@ class VerticalStructureConfig(Section):
     solid_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls seen within 60 deg of head-on do (their median, when there are 3: the sensor's noise; else all long walls')")
     short_max_bottom_m: float = Field(1.0, ge=0, description="a shorter piece reaches down to this height above the ground (plus one of the scan's beam spacings at its range): a tree crown floats ...")
     short_hidden_below: bool = Field(True, description="... unless its bottom is hidden by something in front (in at least half of its cells, the nearest return up to 2 beam spacings below the lowest one, in its direction, lies 0.5 m nearer: a wall seen over a hedge or a car, not a crown, under which the rays pass)")
-    cut_above_counts_as_tall: bool = Field(False, description="a piece whose top is hidden just above by something in front (in at least half of its cells, the nearest return up to 2 beam spacings above the highest one, in its direction, lies 0.5 m nearer: a wall seen under a tree crown or behind a nearer roof) passes the height test as if it reached the top beam (its top is not seen; a car or hedge under a crown's base is rarely cut exactly at its top)")
+    cut_above_counts_as_tall: bool = Field(True, description="a piece whose top is hidden just above by something in front (in at least half of its cells, the nearest return up to 2 beam spacings above the highest one, in its direction, lies 0.5 m nearer: a wall seen under a tree crown or behind a nearer roof) passes the height test as if it reached the top beam (its top is not seen; a car or hedge under a crown's base is rarely cut exactly at its top)")
     cut_above_max_ratio: float = Field(0.8, gt=0, le=1, description="... the return cutting its top lies at most this share of the piece's range away (a crown or roof well in front, not the near end of the same van seen obliquely)")
     short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do")
     extend_hidden_m: float = Field(3.0, ge=0, description="a wall goes on past its ends, up to this far along its line, over its low returns whose column is hidden above by something in front (a bush before a garden wall; 0 = off)")
@@ -1949,4 +1949,4 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
 
 
 EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,
-                      extract=extract_vertical_structure, version=11)
+                      extract=extract_vertical_structure, version=12)

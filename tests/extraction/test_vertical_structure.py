@@ -733,19 +733,19 @@ def test_a_short_wall_whose_bottom_is_hidden_by_a_fence_in_front_is_found_with_s
         assert on_line(seg, [40, -1.25], [40, 1.25], 0.1), seg
 
 
-def test_a_short_wall_whose_top_is_cut_by_a_crown_in_front_is_found_with_cut_above_counts_as_tall():
+def test_a_short_wall_whose_top_is_cut_by_a_crown_in_front_is_found_by_default_and_not_without_cut_above():
     """A 2.5 m house front 40 m away seen under the crown of a tree at 25 m: only its lowest 1.8 m are seen
-    (lower than tall_m, and it does not reach the top beam), so by default it is no wall. With
-    ``cut_above_counts_as_tall`` its top is cut (the returns just above it in its direction are the crown's,
-    15 m nearer) and it is one segment within 5 cm; a car behind the other tree's crown, whose top the rays
-    just above pass over, is still no wall."""
+    (lower than tall_m, and it does not reach the top beam). Its top is cut (the returns just above it in
+    its direction are the crown's, 15 m nearer), so by default (``cut_above_counts_as_tall``) it is one
+    segment within 5 cm, and without that setting it is no wall; a car behind the other tree's crown, whose
+    top the rays just above pass over, is no wall either way."""
     trees = [{"kind": "tree", "position": [25.0, y], "trunk_height": 2.2, "crown_radius": 2.5} for y in (0.0, 8.0)]
     car = {"kind": "car", "position": [40.0, 16.0], "heading_deg": 90.0}
     scan = cast_scan([building(40, -1.25, 46, 1.25, 8.0), car, *trees], sensor="vls128", azimuth_step=0.2)
     house = (np.abs(scan[:, 0] - 40) < 0.1) & (np.abs(scan[:, 1]) < 1.2)
     assert 1.5 < scan[house, 2].max() + SENSORS["vls128"].height_m < 2.1         # seen up to ~1.8 m only
-    assert len(extract_vertical_structure(scan)) == 0
-    result = extract_vertical_structure(scan, VerticalStructureConfig(cut_above_counts_as_tall=True))
+    assert len(extract_vertical_structure(scan, VerticalStructureConfig(cut_above_counts_as_tall=False))) == 0
+    result = extract_vertical_structure(scan)
     assert len(result) == 1
     assert on_line(result.segments[0], [40, -1.25], [40, 1.25], 0.05)
     assert abs(result.segments[0][3] - result.segments[0][1]) > 2.0
