@@ -71,8 +71,8 @@ wall's points away. One pass, no randomness:
    but it stops the top beam; a 1.5 m car never does, nor does a 2 m van at 11 m.
    With ``cut_above_counts_as_tall`` (adopted 2026-12-04 as version 12; measured in ``docs/results.md``) a
    fourth way: its top is cut by something well in front (in at least half of its cells, the nearest
-   return up to 2 beam spacings above the highest one, in its direction, lies 0.5 m and
-   ``cut_above_max_ratio`` of its range nearer: a wall seen under a tree crown or behind a nearer roof).
+   return up to 2 beam spacings above the highest one, in its direction, lies 0.5 m nearer and at most
+   ``cut_above_max_ratio`` of its range away: a wall seen under a tree crown or behind a nearer roof).
    A piece whose returns leave gaps (columns of a far wall seen at grazing incidence, metres apart)
    must be straight in each column (``sparse_curve_factor``) and its columns must lie on one line
    (``sparse_offset_factor``), which lets ``link_grazing_deg`` reach 87 deg (with
