@@ -41,10 +41,11 @@ with coarse azimuth steps, a kind none of the first eight tuning worlds had: the
 settings alone (the next seeds with vls128 at 0.37-0.40 deg), and no held-out world was looked into.
 19-28 and later 29-38 were drawn in order and added before anything was run on them."""
 
-PROBE_SEEDS: tuple[int, ...] = (39, 40, 41, 42, 43, 44, 45, 46, 47, 48, 52, 56, 72)
+PROBE_SEEDS: tuple[int, ...] = (39, 40, 41, 42, 43, 44, 45, 46, 47, 48, 52, 56, 72, 196, 216, 236)
 """Worlds outside both splits that were run and looked into while developing, so they are development
 worlds, not validation: 44, 56 and 72 were drawn by the settings of held-out world 7108 (the next seeds with
-an hdl64 at <= 0.21 deg and >= 2.5 cm noise); 39-43, 45-48 and 52 were drawn in order as fresh worlds, and
+an hdl64 at <= 0.21 deg and >= 2.5 cm noise), and 196, 216 and 236 the same way on 2026-12-04 (the next three
+such seeds after 72); 39-43, 45-48 and 52 were drawn in order as fresh worlds, and
 world 45 drove extractor version 10 (2026-12-04, ``docs/results.md``). Not in :data:`TUNING_SEEDS`, so the
 tuning tables stay comparable; run them with ``bench_generalization.py --seeds``. A new check of how the
 defaults generalise needs seeds in none of these three lists."""
