@@ -44,8 +44,8 @@ settings alone (the next seeds with vls128 at 0.37-0.40 deg), and no held-out wo
 PROBE_SEEDS: tuple[int, ...] = (39, 40, 41, 42, 43, 44, 45, 46, 47, 48, 52, 56, 72, 196, 216, 236)
 """Worlds outside both splits that were run and looked into while developing, so they are development
 worlds, not validation: 44, 56 and 72 were drawn by the settings of held-out world 7108 (the next seeds with
-an hdl64 at <= 0.21 deg and >= 2.5 cm noise), and 196, 216 and 236 the same way on 2026-12-04 (the next three
-such seeds after 72); 39-43, 45-48 and 52 were drawn in order as fresh worlds, and
+an hdl64 at <= 0.21 deg and >= 2.5 cm noise), and 196, 216 and 236 the same way (the next three such seeds
+after 72; 196 was first run on 2026-12-02); 39-43, 45-48 and 52 were drawn in order as fresh worlds, and
 world 45 drove extractor version 10 (2026-12-04, ``docs/results.md``). Not in :data:`TUNING_SEEDS`, so the
 tuning tables stay comparable; run them with ``bench_generalization.py --seeds``. A new check of how the
 defaults generalise needs seeds in none of these three lists."""
