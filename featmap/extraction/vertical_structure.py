@@ -1170,14 +1170,20 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     spacing = np.hypot(cells.centroid[members, 0], cells.centroid[members, 1]) * np.tan(np.deg2rad(config.elevation_step_deg))
     floats = np.full(n, np.inf)
     np.minimum.at(floats, piece, cells.bottom[members] - spacing)
+    cells_per_piece = np.bincount(piece, minlength=n)
+
+    def in_half_of_its_cells(flag: np.ndarray | None) -> np.ndarray:
+        """(n,) the pieces with ``flag`` (per cell, or None: off) in at least half of their cells."""
+        if flag is None:
+            return np.zeros(n, bool)
+        return np.bincount(piece, flag[members], n) >= 0.5 * cells_per_piece
+
     # With short_hidden_below, a piece whose bottom is hidden by something in front in at least half of its
     # cells (cells, not columns) may float: rays pass under a crown, not under a wall seen over a hedge.
-    hidden_below = (np.zeros(n, bool) if cells.hidden_below is None else
-                    np.bincount(piece, cells.hidden_below[members], n) >= 0.5 * np.bincount(piece, minlength=n))
+    hidden_below = in_half_of_its_cells(cells.hidden_below)
     # With cut_above_counts_as_tall, a piece whose top is cut by something in front in at least half of its
     # cells is as tall as the sensor can tell, like one that reaches the top beam.
-    cut_above = (np.zeros(n, bool) if cells.cut_above is None else
-                 np.bincount(piece, cells.cut_above[members], n) >= 0.5 * np.bincount(piece, minlength=n))
+    cut_above = in_half_of_its_cells(cells.cut_above)
     length = np.hypot(*(b - a).T)
     solid = length >= config.solid_length_m
     ok = (count >= np.where(solid, config.solid_min_points, config.min_points)) & (length >= config.min_length_m)
