@@ -55,7 +55,7 @@ from featmap.evaluation.observation_metrics import truth_from_observations  # no
 from featmap.io.run_metrics import read_run_metrics  # noqa: E402
 from featmap.io.segments_csv import read_fused_csv  # noqa: E402
 from featmap.io.sim_truth import OBSERVATIONS_FILE, read_observations  # noqa: E402
-from featmap.simulation.procedural import split_seeds  # noqa: E402
+from featmap.simulation.splits import split_seeds  # noqa: E402
 
 QUIET = ["--set", "output.plots=false", "--set", "output.html=false", "--set", "output.kml=false"]
 KEYS = ("observable_walls", "recall", "precision", "corner_err_cm")

@@ -1,6 +1,6 @@
 """Generalization benchmark: per-scan extraction and fused maps on procedurally generated worlds.
 
-    .venv/bin/python benchmarks/bench_generalization.py [--split tuning|heldout] [--seeds S ...]
+    .venv/bin/python benchmarks/bench_generalization.py [--split tuning|heldout|heldout2] [--seeds S ...]
         [--frames a:b:c] [--workers 2] [--set key=value ...] [--cache-dir DIR] [--no-cache] [--json FILE] [--docs]
         [--losses K] [--variant "key=value [key=value ...]" ...]
 
@@ -8,13 +8,14 @@ Worlds come from :mod:`featmap.simulation.procedural` (house rows, apartment blo
 side streets, far walls 50-100 m away, cars, fences, hedges, poles, trees, sloped streets with
 curbs; hdl64, vlp32, vls128 or vlp16 with 0.1-0.4 deg azimuth steps, 1-3 cm range noise and
 dropout). ``--split tuning`` (default) uses ``TUNING_SEEDS``, the worlds to develop and tune on;
-``--split heldout`` uses ``HELDOUT_SEEDS``, which must never be used while tuning: run it only to
-report how final defaults generalise. ``--split tuning --seeds`` also takes any other seed that is not
+``--split heldout`` uses ``HELDOUT_SEEDS`` and ``--split heldout2`` ``SECOND_HELDOUT_SEEDS``
+(:mod:`featmap.simulation.splits`), which must never be used while tuning: run them only to report how
+final defaults generalise. ``--split tuning --seeds`` also takes any other seed that is not
 held out (a probe world, e.g. one chosen by the settings of a held-out world that misses). Each drive is simulated on first use into
 ``data/sim/<split>/procedural_<seed>`` with per-scan ground truth (``truth/observations.npz``).
 
-The default covers every frame of every world of the split (31 tuning or 10 held-out worlds of
-120-260 scans at 10 Hz: 6147 and 2198 scans). First use simulates them (10-100 s and 0.1-0.5 GB per
+The default covers every frame of every world of the split (31 tuning or twice 10 held-out worlds of
+115-260 scans at 10 Hz: 6147, 2198 and 2063 scans). First use simulates them (10-100 s and 0.1-0.5 GB per
 world), and so does any change to the generator or to the simulator's code. With an empty cache nearly
 all of the run is extraction (the speed is printed); a re-run that changes only fusion settings takes
 about a minute for the tuning split (61 s on 2026-12-03, all three methods).
@@ -82,7 +83,8 @@ from featmap.io.sim_truth import read_observations
 from featmap.pipeline import SegmentStore, load_config
 from featmap.pipeline.executor import ProcessExecutor, SerialExecutor
 from featmap.pipeline.extract import extract_source
-from featmap.simulation.procedural import generate, split_seeds
+from featmap.simulation.procedural import generate
+from featmap.simulation.splits import HELDOUT_SPLITS, SPLITS, held_out_seeds, split_seeds
 from featmap.simulation.simulate import SIM_DATE, simulate_drive, simulation_fingerprint
 
 DRIVE = f"{SIM_DATE}_drive_0001"
@@ -437,7 +439,7 @@ def markdown_summary(results: list[WorldResult], methods: list[str], split: str,
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--split", choices=("tuning", "heldout"), default="tuning")
+    parser.add_argument("--split", choices=tuple(SPLITS), default="tuning")
     parser.add_argument("--seeds", type=int, nargs="+",
                         help="a subset of the split's seeds; with --split tuning also any seed that is not held out "
                              "(a probe world to develop on)")
@@ -451,12 +453,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, help="also write every number to this JSON file")
     parser.add_argument("--losses", type=int, default=0, metavar="K",
                         help="also print where the segment coverage is lost: the uncovered observed wall length by "
-                             "how the drive saw it, and the K longest uncovered stretches (not with --split heldout)")
+                             "how the drive saw it, and the K longest uncovered stretches (not on held-out splits)")
     parser.add_argument("--docs", action="store_true",
                         help="write the summary into docs/results.md (block generalization_<split>)")
     parser.add_argument("--variant", action="append", default=[], metavar='"KEY=VALUE ..."',
                         help="also run the worlds with these settings on top of --set and compare (repeatable; "
-                             "not with --split heldout or --docs)")
+                             "not on held-out splits, nor with --docs)")
     args = parser.parse_args(argv)
     console = Console(highlight=False, width=None if os.isatty(1) else 200)
     try:
@@ -510,9 +512,10 @@ def _run(args, console: Console) -> int:
     allowed = split_seeds(args.split)
     seeds = list(args.seeds or allowed)
     if args.split == "tuning":               # any world that is not held out may be developed on
-        stray = [s for s in seeds if s in split_seeds("heldout")]
+        stray = [s for s in seeds if s in held_out_seeds()]
         if stray:
-            raise FeatmapError(f"--seeds {stray}: held-out worlds; run them with --split heldout, only to report")
+            names = ", ".join(n for n, held in HELDOUT_SPLITS.items() if set(stray) & set(held))
+            raise FeatmapError(f"--seeds {stray}: held-out worlds; run them with --split {names}, only to report")
     else:
         if args.losses:
             raise FeatmapError("--losses: held-out worlds are run only to report, not looked into; "

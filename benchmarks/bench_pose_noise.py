@@ -69,7 +69,7 @@ from featmap.pipeline.executor import local_executor
 from featmap.pipeline.extract import Extraction, extract_source
 from featmap.pipeline.refine import refine_extraction
 from featmap.refinement import planar_difference
-from featmap.simulation.procedural import split_seeds
+from featmap.simulation.splits import split_seeds
 from featmap.simulation.simulate import oxts_drift, perturb_poses
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -77,6 +77,8 @@ STEPS = (
           {"extraction_3d", "simulation", *MAPPING}, "generalization_tuning generalization_losses"),
     _step("generalization_heldout", "benchmarks/bench_generalization.py --split heldout --docs",
           {"extraction_3d", "simulation", *MAPPING}, "generalization_heldout"),
+    _step("generalization_heldout2", "benchmarks/bench_generalization.py --split heldout2 --docs",
+          {"extraction_3d", "simulation", *MAPPING}, "generalization_heldout2"),
     _step("footprints", "benchmarks/bench_footprints.py --docs", {"extraction_3d", "simulation", *MAPPING},
           "footprints"),
     _step("pose_tuning_sim", "benchmarks/bench_pose_noise.py --parts sim --docs",

@@ -39,7 +39,7 @@ from featmap.extraction.base import segments_to_world
 from featmap.extraction import vertical_structure as vs
 from featmap.io.kitti_raw import read_velo_bin
 from featmap.pipeline.config import load_config
-from featmap.simulation.procedural import HELDOUT_SEEDS
+from featmap.simulation.splits import HELDOUT_SEEDS
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVE = "2000_01_01_drive_0001"

@@ -14,12 +14,28 @@ def bench():
         yield module
 
 
-def test_losses_are_refused_on_held_out_worlds(bench, tmp_path, capsys):
+@pytest.mark.parametrize("split", ["heldout", "heldout2"])
+def test_losses_and_variants_are_refused_on_held_out_worlds(bench, tmp_path, capsys, split):
     # refused before anything is simulated or extracted
-    assert bench.main(["--split", "heldout", "--losses", "5", "--sim-root", str(tmp_path)]) == 2
+    assert bench.main(["--split", split, "--losses", "5", "--sim-root", str(tmp_path)]) == 2
     out = capsys.readouterr().out
     assert out.count("\n") == 1 and "--losses" in out and "held-out" in out
+    assert bench.main(["--split", split, "--variant", "fusion.proposed.gamma=0.3", "--sim-root", str(tmp_path)]) == 2
+    out = capsys.readouterr().out
+    assert out.count("\n") == 1 and "--variant" in out and "held-out" in out
     assert not any(tmp_path.iterdir())
+
+
+def test_held_out_seeds_are_refused_as_tuning_worlds(bench, tmp_path, capsys):
+    assert bench.main(["--seeds", "11", "7115", "--sim-root", str(tmp_path)]) == 2
+    out = capsys.readouterr().out
+    assert out.count("\n") == 1 and "[7115]" in out and "--split heldout2" in out
+    assert bench.main(["--split", "heldout2", "--seeds", "7101", "--sim-root", str(tmp_path)]) == 2
+    assert "not in the heldout2 split" in capsys.readouterr().out
+    assert not any(tmp_path.iterdir())
+
+
+def test_losses_count_must_not_be_negative(bench, tmp_path, capsys):
     assert bench.main(["--losses", "-1", "--sim-root", str(tmp_path)]) == 2
     assert "--losses -1" in capsys.readouterr().out and not any(tmp_path.iterdir())
 

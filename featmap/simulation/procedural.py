@@ -20,8 +20,7 @@
 through hdl64, vlp32, vls128 and vlp16 with the seed, with an azimuth step of 0.1-0.4 deg (0.2-0.4
 for the 128-beam sensor, to keep scans below ~230k points), range noise 1-3 cm and dropout 0-10 %.
 
-Seeds are split in two (see :data:`TUNING_SEEDS` and :data:`HELDOUT_SEEDS`): develop and tune
-on the tuning worlds only; the held-out worlds measure how well the defaults generalise.
+Which seeds are tuning, probe and held-out worlds is in :mod:`featmap.simulation.splits`.
 """
 
 from __future__ import annotations
@@ -32,28 +31,6 @@ import numpy as np
 
 from featmap.simulation.sensors import SENSORS, SensorPreset
 from featmap.simulation.worlds import World, world_from_dict
-
-TUNING_SEEDS: tuple[int, ...] = (11, 12, 13, 14, 15, 16, 17, 18, 54, 82, 138, 19, 20, 21, 22, 23, 24, 25, 26, 27, 28,
-                                 29, 30, 31, 32, 33, 34, 35, 36, 37, 38)
-"""Worlds to develop and tune on: look at them, plot them, tune every default on them. 54, 82 and 138
-were added later, after the held-out report showed its two least precise worlds to be 128-beam scans
-with coarse azimuth steps, a kind none of the first eight tuning worlds had: they were chosen by their
-settings alone (the next seeds with vls128 at 0.37-0.40 deg), and no held-out world was looked into.
-19-28 and later 29-38 were drawn in order and added before anything was run on them."""
-
-PROBE_SEEDS: tuple[int, ...] = (39, 40, 41, 42, 43, 44, 45, 46, 47, 48, 52, 56, 72, 196, 216, 236)
-"""Worlds outside both splits that were run and looked into while developing, so they are development
-worlds, not validation: 44, 56 and 72 were drawn by the settings of held-out world 7108 (the next seeds with
-an hdl64 at <= 0.21 deg and >= 2.5 cm noise), and 196, 216 and 236 the same way (the next three such seeds
-after 72; 196 was first run on 2026-12-02); 39-43, 45-48 and 52 were drawn in order as fresh worlds, and
-world 45 drove extractor version 10 (2026-12-04, ``docs/results.md``). Not in :data:`TUNING_SEEDS`, so the
-tuning tables stay comparable; run them with ``bench_generalization.py --seeds``. A new check of how the
-defaults generalise needs seeds in none of these three lists."""
-
-HELDOUT_SEEDS: tuple[int, ...] = (7101, 7102, 7103, 7104, 7105, 7106, 7107, 7108, 7109, 7110)
-"""Held-out worlds. Never used while tuning: no default, threshold or design choice may be chosen by
-looking at results on these worlds. Run them only to report how the final defaults generalise
-(``benchmarks/bench_generalization.py --split heldout``), and never change a default after seeing them."""
 
 SENSOR_CYCLE = ("hdl64", "vlp32", "vls128", "vlp16")
 AZIMUTH_STEP_RANGE_DEG = {"hdl64": (0.1, 0.4), "vlp32": (0.1, 0.4), "vls128": (0.2, 0.4), "vlp16": (0.1, 0.4)}
@@ -83,15 +60,6 @@ class GeneratedDrive:
     seed: int
     world: World
     settings: DriveSettings
-
-
-def split_seeds(split: str) -> tuple[int, ...]:
-    """The seeds of ``"tuning"`` or ``"heldout"``."""
-    if split == "tuning":
-        return TUNING_SEEDS
-    if split == "heldout":
-        return HELDOUT_SEEDS
-    raise ValueError(f"unknown split {split!r}; allowed: tuning, heldout")
 
 
 def generate_world(seed: int) -> World:

@@ -204,15 +204,20 @@ class SimulatedDrive:
         return drive_paths(self.root, self.date, self.drive_id)[1]
 
 
+NOT_SIMULATOR_CODE = frozenset({"splits.py"})
+"""Modules of :mod:`featmap.simulation` left out of :func:`simulation_fingerprint`: which seeds form which
+split does not change how any drive is simulated."""
+
+
 def simulation_fingerprint(spec: dict) -> str:
     """16 hex digits naming what a simulated drive is made from: ``spec`` (JSON-able: the world, sensor,
-    noise, seed, ...) and the source code of :mod:`featmap.simulation`, so that a cached drive is
-    simulated again when either changes."""
+    noise, seed, ...) and the source code of :mod:`featmap.simulation` (but for :data:`NOT_SIMULATOR_CODE`),
+    so that a cached drive is simulated again when either changes."""
     import hashlib
 
     import featmap.simulation as simulation
 
-    sources = sorted(Path(simulation.__file__).parent.glob("*.py"))
+    sources = sorted(p for p in Path(simulation.__file__).parent.glob("*.py") if p.name not in NOT_SIMULATOR_CODE)
     spec = {**spec, "simulator": hashlib.sha256(b"".join(p.read_bytes() for p in sources)).hexdigest()}
     return hashlib.sha256(json.dumps(spec, sort_keys=True, default=list).encode()).hexdigest()[:16]
 

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from shapely.geometry import LineString, Polygon
 
-from featmap.simulation.procedural import (HELDOUT_SEEDS, PROBE_SEEDS, TUNING_SEEDS, drive_settings, generate,
-                                           generate_world, split_seeds)
+from featmap.simulation.procedural import drive_settings, generate, generate_world
 from featmap.simulation.scene import build_scene
+from featmap.simulation.splits import HELDOUT_SEEDS, SECOND_HELDOUT_SEEDS, TUNING_SEEDS
 from featmap.simulation.worlds import World, building_edges
 
 
@@ -25,16 +25,7 @@ def test_same_seed_same_world_and_settings():
     assert generate_world(TUNING_SEEDS[1]).model_dump() != a.world.model_dump()
 
 
-def test_tuning_and_heldout_seeds_are_apart():
-    assert len(HELDOUT_SEEDS) >= 8 and len(TUNING_SEEDS) >= 4
-    assert not set(TUNING_SEEDS) & set(HELDOUT_SEEDS)
-    assert not set(PROBE_SEEDS) & (set(TUNING_SEEDS) | set(HELDOUT_SEEDS))   # looked into: never held out
-    assert split_seeds("heldout") == HELDOUT_SEEDS and split_seeds("tuning") == TUNING_SEEDS
-    with pytest.raises(ValueError, match="unknown split"):
-        split_seeds("test")
-
-
-@pytest.mark.parametrize("seed", HELDOUT_SEEDS)
+@pytest.mark.parametrize("seed", HELDOUT_SEEDS + SECOND_HELDOUT_SEEDS)
 def test_every_heldout_world_validates_and_builds(seed):
     world = generate_world(seed)
     assert isinstance(world, World) and world.buildings
@@ -81,7 +72,7 @@ def test_far_walls_and_a_clear_route(tuning_worlds):
 
 
 def test_settings_cover_every_sensor_and_the_listed_ranges():
-    for seeds in (TUNING_SEEDS, HELDOUT_SEEDS):
+    for seeds in (TUNING_SEEDS, HELDOUT_SEEDS, SECOND_HELDOUT_SEEDS):
         settings = [drive_settings(s) for s in seeds]
         assert {s.sensor.name for s in settings} == {"hdl64", "vlp32", "vls128", "vlp16"}
         for s in settings:

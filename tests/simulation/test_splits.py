@@ -1,0 +1,39 @@
+"""The seed lists: tuning, probe and held-out worlds never overlap, and listing a seed re-simulates nothing."""
+
+from pathlib import Path
+
+import pytest
+
+from featmap.simulation import simulate
+from featmap.simulation.splits import (HELDOUT_SEEDS, HELDOUT_SPLITS, PROBE_SEEDS, SECOND_HELDOUT_SEEDS, TUNING_SEEDS,
+                                       held_out_seeds, split_seeds)
+
+
+def test_tuning_probe_and_heldout_seeds_are_apart():
+    assert len(HELDOUT_SEEDS) >= 8 and len(SECOND_HELDOUT_SEEDS) >= 8 and len(TUNING_SEEDS) >= 4
+    assert not set(HELDOUT_SEEDS) & set(SECOND_HELDOUT_SEEDS)
+    assert held_out_seeds() == set(HELDOUT_SEEDS) | set(SECOND_HELDOUT_SEEDS)
+    assert not set(TUNING_SEEDS) & held_out_seeds()
+    assert not set(PROBE_SEEDS) & (set(TUNING_SEEDS) | held_out_seeds())   # looked into: never held out
+    assert split_seeds("tuning") == TUNING_SEEDS
+    assert all(split_seeds(name) == seeds for name, seeds in HELDOUT_SPLITS.items())
+    with pytest.raises(ValueError, match="unknown split 'test'; allowed: tuning, heldout, heldout2"):
+        split_seeds("test")
+
+
+def test_listing_a_seed_does_not_change_the_simulation_fingerprint(monkeypatch):
+    spec = {"world": "w", "seed": 1}
+    before = simulate.simulation_fingerprint(spec)
+    read_bytes = Path.read_bytes
+
+    def edited(name):
+        def read(path):
+            data = read_bytes(path)
+            return data + b"\n# edited\n" if path.name == name else data
+        return read
+
+    monkeypatch.setattr(Path, "read_bytes", edited("splits.py"))
+    assert simulate.simulation_fingerprint(spec) == before
+    monkeypatch.setattr(Path, "read_bytes", edited("procedural.py"))
+    assert simulate.simulation_fingerprint(spec) != before              # the generator is simulator code
+    assert (Path(simulate.__file__).parent / "splits.py").exists()      # the name left out is a real module
