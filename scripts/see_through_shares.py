@@ -39,7 +39,7 @@ from featmap.extraction.base import segments_to_world
 from featmap.extraction import vertical_structure as vs
 from featmap.io.kitti_raw import read_velo_bin
 from featmap.pipeline.config import load_config
-from featmap.simulation.splits import HELDOUT_SEEDS
+from featmap.simulation.splits import held_out_seeds
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVE = "2000_01_01_drive_0001"
@@ -100,7 +100,7 @@ def main() -> int:
     if args.every < 1:
         print(f"see_through_shares: --every must be at least 1, got {args.every}", file=sys.stderr)
         return 2
-    held = sorted(set(args.seeds) & set(HELDOUT_SEEDS))
+    held = sorted(set(args.seeds) & held_out_seeds())
     if held:
         print(f"see_through_shares: --seeds {held} are held out; use tuning or probe worlds", file=sys.stderr)
         return 2
