@@ -25,8 +25,8 @@ worlds, not validation: 44, 56 and 72 were drawn by the settings of held-out wor
 an hdl64 at <= 0.21 deg and >= 2.5 cm noise), and 196, 216 and 236 the same way (the next three such seeds
 after 72; 196 was first run on 2026-12-02); 39-43, 45-48 and 52 were drawn in order as fresh worlds, and
 world 45 drove extractor version 10 (2026-12-04, ``docs/results.md``); 250, 270 and 294 were drawn by the
-settings of second-held-out world 7118 (the next seeds with a vls128 at >= 0.3 deg and >= 2.5 cm noise) and
-279, 295 and 327 by those of 7119 (the next vlp16s at <= 0.15 deg), on 2026-12-05. Not in
+settings of second-held-out world 7118 (the first seeds after 236 with a vls128 at >= 0.3 deg and >= 2.5 cm
+noise) and 279, 295 and 327 by those of 7119 (the first vlp16s at <= 0.15 deg after 236), on 2026-12-05. Not in
 :data:`TUNING_SEEDS`, so the tuning tables stay comparable; run them with ``bench_generalization.py --seeds``.
 A new check of how the defaults generalise needs seeds in none of these lists."""
 
@@ -34,8 +34,9 @@ HELDOUT_SEEDS: tuple[int, ...] = (7101, 7102, 7103, 7104, 7105, 7106, 7107, 7108
 """The first held-out worlds. Never used while tuning: no default, threshold or design choice may be chosen
 by looking at results on these worlds. Run them only to report how the final defaults generalise
 (``benchmarks/bench_generalization.py --split heldout``), and never change a default after seeing them.
-They were reported after each of extractor versions 1-12 (2026-12-01 to 2026-12-04), so their figures
-have seen twelve rounds of choices made elsewhere: :data:`SECOND_HELDOUT_SEEDS` is the unspent check."""
+They were re-run and reported after more than a dozen extractor and fusion changes (2026-12-01 to
+2026-12-05), so their figures have seen many rounds of choices made elsewhere: :data:`SECOND_HELDOUT_SEEDS`
+is the unspent check."""
 
 SECOND_HELDOUT_SEEDS: tuple[int, ...] = (7111, 7112, 7113, 7114, 7115, 7116, 7117, 7118, 7119, 7120)
 """The second held-out worlds, drawn in order on 2026-12-05 (the next ten seeds after
