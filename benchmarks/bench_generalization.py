@@ -512,7 +512,8 @@ def _run(args, console: Console) -> int:
     allowed = split_seeds(args.split)
     seeds = list(args.seeds or allowed)
     if args.split == "tuning":               # any world that is not held out may be developed on
-        stray = [s for s in seeds if s in held_out_seeds()]
+        held = held_out_seeds()
+        stray = [s for s in seeds if s in held]
         if stray:
             names = ", ".join(n for n, held in HELDOUT_SPLITS.items() if set(stray) & set(held))
             raise FeatmapError(f"--seeds {stray}: held-out worlds; run them with --split {names}, only to report")
