@@ -86,7 +86,13 @@ wall's points away. One pass, no randomness:
    (``short_max_bottom_m``: a crown floats), unless (``short_hidden_below``, adopted 2026-12-04 as version 11;
    measured in ``docs/results.md``) their bottom is hidden by something in front: in at least half of their cells,
    the nearest return up to 2 beam spacings below the lowest one, in its direction, lies 0.5 m nearer (a
-   house front seen over a hedge or a car; rays pass under a crown). The spread of the scan's long walls
+   house front seen over a hedge or a car; rays pass under a crown). And (``floating_min_top_m``, adopted
+   2026-12-05 as version 13; measured in ``docs/results.md``) a piece shorter than ``long_m`` that floats in
+   at least half of its 0.5 m columns (their bottom neither near the ground nor hidden in front) is no wall
+   when at least half of those floating columns are low and thin (top below ``floating_min_top_m``, height
+   span below ``floating_min_span_m``): a tree's trunk is one column reaching the ground, and the underside
+   of its crown curving towards the sensor beside it is seen in slivers 2-4 m up; it reaches down and is
+   as tall as a van, so the other tests let it through. The spread of the scan's long walls
    (their median rms; not those joined from single columns, whose noise lies along them) bounds everyone's:
    ``short_rms_factor`` times it for short pieces (a crown's facets, a wall merged with a crown in
    line with it, are thicker than the scan's walls), and ``solid_rms_factor`` times that of the long
@@ -188,6 +194,8 @@ class VerticalStructureConfig(Section):
     cut_above_counts_as_tall: bool = Field(True, description="a piece whose top is hidden just above by something in front (in at least half of its cells, the nearest return up to 2 beam spacings above the highest one, in its direction, lies 0.5 m nearer: a wall seen under a tree crown or behind a nearer roof) passes the height test as if it reached the top beam (its top is not seen; a car or hedge under a crown's base is rarely cut exactly at its top)")
     cut_above_max_ratio: float = Field(0.8, gt=0, le=1, description="... the return cutting its top lies at most this share of the piece's range away (a crown or roof well in front, not the near end of the same van seen obliquely)")
     short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do")
+    floating_min_top_m: float = Field(4.0, ge=0, description="a piece shorter than long_m that floats in at least half of its 0.5 m columns (their bottom neither within short_max_bottom_m of the ground nor hidden by something in front) is no wall when at least half of those floating columns are low and thin: their top below this height above the ground ... (a tree's trunk beside the underside of its crown; 0 = off)")
+    floating_min_span_m: float = Field(1.0, ge=0, description="... and their height span below this (a crown's underside is seen in thin slivers; a wall's upper storey seen over a lower roof stands higher)")
     extend_hidden_m: float = Field(3.0, ge=0, description="a wall goes on past its ends, up to this far along its line, over its low returns whose column is hidden above by something in front (a bush before a garden wall; 0 = off)")
 
 
@@ -1171,6 +1179,7 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     floats = np.full(n, np.inf)
     np.minimum.at(floats, piece, cells.bottom[members] - spacing)
     cells_per_piece = np.bincount(piece, minlength=n)
+    floating_short = _floating_short_pieces(cells, members, piece, col, col_piece, col_top, spacing, n, config)
 
     def in_half_of_its_cells(flag: np.ndarray | None) -> np.ndarray:
         """(n,) the pieces with ``flag`` (per cell, or None: off) in at least half of their cells."""
@@ -1196,8 +1205,39 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     ok &= (floats <= np.where(solid, np.inf, config.short_max_bottom_m)) | hidden_below
     ok &= (reaches_top | cut_above | (top >= config.tall_m)
            | ((length >= config.long_m) & (top >= config.long_min_top_m)))
+    ok &= ~(floating_short & (length < config.long_m))
     out[members] = np.where(ok[piece], piece, -1)
     return out
+
+
+def _floating_short_pieces(cells: Cells, members: np.ndarray, piece: np.ndarray, col: np.ndarray,
+                           col_piece: np.ndarray, col_top: np.ndarray, spacing: np.ndarray, n: int,
+                           config: VerticalStructureConfig) -> np.ndarray:
+    """(n,) pieces that float over most of their length in low, thin columns (``floating_min_top_m``).
+
+    A column (``COLUMN_M`` along the piece) is settled when its lowest return, less one beam spacing at its
+    range, is within ``short_max_bottom_m`` of the ground, or when its bottom is hidden by something in
+    front (``Cells.hidden_below``); else it floats, and a floating column is low and thin when its top is
+    below ``floating_min_top_m`` and its height span below ``floating_min_span_m``. A piece settled in at
+    most half of its columns, at least half of whose floating columns are low and thin, is flagged: a
+    tree's trunk is one settled column, and the underside of its crown curving towards the sensor beside
+    it is seen in thin slivers 2-4 m up, where a wall's upper storey seen over a lower roof stands higher.
+    """
+    if config.floating_min_top_m <= 0:
+        return np.zeros(n, bool)
+    n_col = len(col_piece)
+    col_bottom = np.full(n_col, np.inf)
+    np.minimum.at(col_bottom, col, cells.bottom[members])
+    col_low = np.full(n_col, np.inf)
+    np.minimum.at(col_low, col, cells.bottom[members] - spacing)
+    settled = col_low <= config.short_max_bottom_m
+    if cells.hidden_below is not None:
+        np.logical_or.at(settled, col, cells.hidden_below[members])
+    low_thin = ~settled & (col_top < config.floating_min_top_m) & (col_top - col_bottom < config.floating_min_span_m)
+    columns = np.bincount(col_piece, minlength=n)
+    n_settled = np.bincount(col_piece, settled, n)
+    return (n_settled <= 0.5 * columns) & (np.bincount(col_piece, low_thin, n) >= 0.5 * (columns - n_settled)) \
+        & (n_settled < columns)
 
 
 @dataclass(frozen=True)
@@ -1955,4 +1995,4 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
 
 
 EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,
-                      extract=extract_vertical_structure, version=12)
+                      extract=extract_vertical_structure, version=13)

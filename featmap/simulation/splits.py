@@ -40,10 +40,18 @@ is the unspent check."""
 
 SECOND_HELDOUT_SEEDS: tuple[int, ...] = (7111, 7112, 7113, 7114, 7115, 7116, 7117, 7118, 7119, 7120)
 """The second held-out worlds, drawn in order on 2026-12-05 (the next ten seeds after
-:data:`HELDOUT_SEEDS`) and first run with extractor version 12, the defaults unchanged since. The same
-rules as :data:`HELDOUT_SEEDS` (``--split heldout2``)."""
+:data:`HELDOUT_SEEDS`) and first run with extractor version 12. The same rules as :data:`HELDOUT_SEEDS`
+(``--split heldout2``). Extractor version 13 (``floating_min_top_m``) was chosen on probe worlds drawn by
+the settings of 7118, so these figures too have seen a choice made for them: :data:`THIRD_HELDOUT_SEEDS`
+is the unspent check."""
 
-HELDOUT_SPLITS: dict[str, tuple[int, ...]] = {"heldout": HELDOUT_SEEDS, "heldout2": SECOND_HELDOUT_SEEDS}
+THIRD_HELDOUT_SEEDS: tuple[int, ...] = (7121, 7122, 7123, 7124, 7125, 7126, 7127, 7128, 7129, 7130)
+"""The third held-out worlds, drawn in order on 2026-12-05 (the next ten seeds after
+:data:`SECOND_HELDOUT_SEEDS`) and first run with extractor version 13. The same rules as
+:data:`HELDOUT_SEEDS` (``--split heldout3``)."""
+
+HELDOUT_SPLITS: dict[str, tuple[int, ...]] = {"heldout": HELDOUT_SEEDS, "heldout2": SECOND_HELDOUT_SEEDS,
+                                               "heldout3": THIRD_HELDOUT_SEEDS}
 """The held-out splits by name."""
 
 SPLITS: dict[str, tuple[int, ...]] = {"tuning": TUNING_SEEDS, **HELDOUT_SPLITS}
