@@ -1,6 +1,6 @@
 """Generalization benchmark: per-scan extraction and fused maps on procedurally generated worlds.
 
-    .venv/bin/python benchmarks/bench_generalization.py [--split tuning|heldout|heldout2|heldout3] [--seeds S ...]
+    .venv/bin/python benchmarks/bench_generalization.py [--split tuning|heldout|heldout2|heldout3|heldout4] [--seeds S ...]
         [--frames a:b:c] [--workers 2] [--set key=value ...] [--cache-dir DIR] [--no-cache] [--json FILE] [--docs]
         [--losses K] [--variant "key=value [key=value ...]" ...]
 
@@ -8,7 +8,8 @@ Worlds come from :mod:`featmap.simulation.procedural` (house rows, apartment blo
 side streets, far walls 50-100 m away, cars, fences, hedges, poles, trees, sloped streets with
 curbs; hdl64, vlp32, vls128 or vlp16 with 0.1-0.4 deg azimuth steps, 1-3 cm range noise and
 dropout). ``--split tuning`` (default) uses ``TUNING_SEEDS``, the worlds to develop and tune on;
-``--split heldout`` uses ``HELDOUT_SEEDS``, ``--split heldout2`` ``SECOND_HELDOUT_SEEDS`` and ``--split heldout3`` ``THIRD_HELDOUT_SEEDS``
+``--split heldout`` uses ``HELDOUT_SEEDS``, ``--split heldout2`` ``SECOND_HELDOUT_SEEDS``, ``--split heldout3``
+``THIRD_HELDOUT_SEEDS`` and ``--split heldout4`` ``FOURTH_HELDOUT_SEEDS``
 (:mod:`featmap.simulation.splits`), which must never be used while tuning: run them only to report how
 final defaults generalise. ``--split tuning --seeds`` also takes any other seed that is not
 held out (a probe world, e.g. one chosen by the settings of a held-out world that misses). Each drive is simulated on first use into

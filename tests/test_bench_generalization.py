@@ -14,7 +14,7 @@ def bench():
         yield module
 
 
-@pytest.mark.parametrize("split", ["heldout", "heldout2", "heldout3"])
+@pytest.mark.parametrize("split", ["heldout", "heldout2", "heldout3", "heldout4"])
 def test_losses_and_variants_are_refused_on_held_out_worlds(bench, tmp_path, capsys, split):
     # refused before anything is simulated or extracted
     assert bench.main(["--split", split, "--losses", "5", "--sim-root", str(tmp_path)]) == 2

@@ -92,7 +92,10 @@ wall's points away. One pass, no randomness:
    when at least half of those floating columns are low and thin (top below ``floating_min_top_m``, height
    span below ``floating_min_span_m``): a tree's trunk is one column reaching the ground, and the underside
    of its crown curving towards the sensor beside it is seen in slivers 2-4 m up; it reaches down and is
-   as tall as a van, so the other tests let it through. The spread of the scan's long walls
+   as tall as a van, so the other tests let it through. Where the sensor's beams lie more than
+   ``min_span_m`` apart in height (a 16-beam sensor beyond 23 m), a wall may be cut by a single beam and
+   span nothing: a piece at least ``one_ring_min_length_m`` long whose top is at least ``tall_m`` up needs
+   no span there (adopted 2026-12-05 as version 14; measured in ``docs/results.md``). The spread of the scan's long walls
    (their median rms; not those joined from single columns, whose noise lies along them) bounds everyone's:
    ``short_rms_factor`` times it for short pieces (a crown's facets, a wall merged with a crown in
    line with it, are thicker than the scan's walls), and ``solid_rms_factor`` times that of the long
@@ -196,6 +199,7 @@ class VerticalStructureConfig(Section):
     short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do")
     floating_min_top_m: float = Field(4.0, ge=0, description="a piece shorter than long_m that floats in at least half of its 0.5 m columns (their bottom neither within short_max_bottom_m of the ground nor hidden by something in front) is no wall when at least half of those floating columns are low and thin: their top below this height above the ground ... (a tree's trunk beside the underside of its crown; 0 = off)")
     floating_min_span_m: float = Field(1.0, ge=0, description="... and their height span below this (a crown's underside is seen in thin slivers; a wall's upper storey seen over a lower roof stands higher)")
+    one_ring_min_length_m: float = Field(6.0, ge=0, description="a piece at least this long, at a range where the sensor's beams lie more than min_span_m apart in height, whose top is at least tall_m above the ground, needs no height span: a far wall cut by a single beam (0 = off)")
     extend_hidden_m: float = Field(3.0, ge=0, description="a wall goes on past its ends, up to this far along its line, over its low returns whose column is hidden above by something in front (a bush before a garden wall; 0 = off)")
 
 
@@ -1136,7 +1140,8 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     ``envelope_margin_m`` or ``envelope_margin_deg``), so a tree crown hanging over a fence does not
     make the fence a wall; columns whose top is hidden by something in front count for neither.
     Long pieces (``solid_length_m``) may float, and may be seen over a narrow band when they reach
-    the top beam; shorter ones must reach down near the ground (see the module docstring).
+    the top beam, or cut by a single beam where the beams lie far apart (``one_ring_min_length_m``);
+    shorter ones must reach down near the ground (see the module docstring).
     """
     out = np.full(len(cells), -1)
     members = np.flatnonzero(label >= 0)
@@ -1179,6 +1184,7 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     floats = np.full(n, np.inf)
     np.minimum.at(floats, piece, cells.bottom[members] - spacing)
     cells_per_piece = np.bincount(piece, minlength=n)
+    length = np.hypot(*(b - a).T)
     floating_short = _floating_short_pieces(cells, members, piece, col, col_piece, col_top, spacing, n, config)
 
     def in_half_of_its_cells(flag: np.ndarray | None) -> np.ndarray:
@@ -1193,14 +1199,21 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     # With cut_above_counts_as_tall, a piece whose top is cut by something in front in at least half of its
     # cells is as tall as the sensor can tell, like one that reaches the top beam.
     cut_above = in_half_of_its_cells(cells.cut_above)
-    length = np.hypot(*(b - a).T)
     solid = length >= config.solid_length_m
     ok = (count >= np.where(solid, config.solid_min_points, config.min_points)) & (length >= config.min_length_m)
     ok &= np.sqrt(msd) <= config.max_rms_m
     # A long piece that stops the top beam may be seen over a narrow band (a hedge in front, an
     # uphill street under the beam): it is higher than the beam there, which is above cars.
     seen_to_top = solid & reaches_top
-    ok &= top - bottom >= np.where(seen_to_top, config.solid_min_span_m, config.min_span_m)
+    min_span = np.where(seen_to_top, config.solid_min_span_m, config.min_span_m)
+    if config.one_ring_min_length_m > 0:
+        # Where the beams lie farther apart in height than min_span_m, a long wall may be cut by one beam
+        # (a 16-beam sensor's beams are 3.5 m apart at 100 m): its returns span nothing in height.
+        piece_spacing = np.full(n, np.inf)
+        np.minimum.at(piece_spacing, piece, spacing)
+        one_ring = (length >= config.one_ring_min_length_m) & (piece_spacing >= config.min_span_m) & (top >= config.tall_m)
+        min_span = np.where(one_ring, 0.0, min_span)
+    ok &= top - bottom >= min_span
     ok &= top >= np.where(seen_to_top, config.cell_min_top_m, config.min_top_m)
     ok &= (floats <= np.where(solid, np.inf, config.short_max_bottom_m)) | hidden_below
     ok &= (reaches_top | cut_above | (top >= config.tall_m)
@@ -1995,4 +2008,4 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
 
 
 EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,
-                      extract=extract_vertical_structure, version=13)
+                      extract=extract_vertical_structure, version=14)

@@ -48,10 +48,17 @@ is the unspent check."""
 THIRD_HELDOUT_SEEDS: tuple[int, ...] = (7121, 7122, 7123, 7124, 7125, 7126, 7127, 7128, 7129, 7130)
 """The third held-out worlds, drawn in order on 2026-12-05 (the next ten seeds after
 :data:`SECOND_HELDOUT_SEEDS`) and first run with extractor version 13. The same rules as
-:data:`HELDOUT_SEEDS` (``--split heldout3``)."""
+:data:`HELDOUT_SEEDS` (``--split heldout3``). Extractor version 14 (``one_ring_min_length_m``) was chosen
+on probe world 327, drawn by the settings of 7119, after these figures were seen once:
+:data:`FOURTH_HELDOUT_SEEDS` is the unspent check."""
+
+FOURTH_HELDOUT_SEEDS: tuple[int, ...] = (7131, 7132, 7133, 7134, 7135, 7136, 7137, 7138, 7139, 7140)
+"""The fourth held-out worlds, drawn in order on 2026-12-05 (the next ten seeds after
+:data:`THIRD_HELDOUT_SEEDS`), fixed before anything ran on them, and first run with extractor version 14.
+The same rules as :data:`HELDOUT_SEEDS` (``--split heldout4``)."""
 
 HELDOUT_SPLITS: dict[str, tuple[int, ...]] = {"heldout": HELDOUT_SEEDS, "heldout2": SECOND_HELDOUT_SEEDS,
-                                               "heldout3": THIRD_HELDOUT_SEEDS}
+                                               "heldout3": THIRD_HELDOUT_SEEDS, "heldout4": FOURTH_HELDOUT_SEEDS}
 """The held-out splits by name."""
 
 SPLITS: dict[str, tuple[int, ...]] = {"tuning": TUNING_SEEDS, **HELDOUT_SPLITS}

@@ -775,3 +775,26 @@ def test_a_trunk_beside_the_underside_of_its_crown_is_no_wall_but_an_upper_store
     assert len(result) == 2
     assert on_line(result.segments[1], [30, -2.5], [30, 2.5], 0.05) and abs(result.segments[1][3] - result.segments[1][1]) > 4.5
     assert on_line(result.segments[0], [20, -6], [20, 6], 0.05)
+
+
+def test_a_far_wall_cut_by_a_single_beam_is_one_segment_within_5_cm_but_far_street_trees_stay_none():
+    """A 32 m facade 95 m ahead, 5 m high, seen by a vlp16 at 0.13 deg: its beams lie 3.3 m apart in height
+    there, so only the +1 deg beam hits it (3.4 m up; the -1 deg one meets its foot at the ground), and its
+    returns span nothing in height. Longer than ``one_ring_min_length_m``, at a range where the beams lie
+    farther apart than ``min_span_m``, and higher than ``tall_m``, it is one segment within 5 cm; without the
+    rule it is none. A row of street trees 60-95 m away, cut by single beams at crown height, stays none."""
+    scan = cast_scan([building(95, -16, 110, 16, 5.0)], sensor="vlp16", azimuth_step=0.13)
+    facade = np.abs(scan[:, 0] - 95) < 0.3
+    heights = scan[facade, 2] + SENSORS["vlp16"].height_m
+    assert heights.max() == pytest.approx(3.4, abs=0.1) and (heights > 0.5).sum() > 140     # one beam, every step
+    assert len(extract_vertical_structure(scan, VerticalStructureConfig(one_ring_min_length_m=0.0))) == 0
+    result = extract_vertical_structure(scan)
+    assert len(result) == 1
+    assert on_line(result.segments[0], [95, -16], [95, 16], 0.05)
+    assert abs(result.segments[0][3] - result.segments[0][1]) > 30
+    assert result.z_max[0] - result.z_min[0] < 0.3
+
+    for x in (60.0, 80.0, 95.0):
+        trees = [{"kind": "tree", "position": [x, float(y)], "trunk_height": 2.8, "crown_radius": 2.4}
+                 for y in np.arange(-24, 24, 4.5)]
+        assert len(extract_vertical_structure(cast_scan(trees, sensor="vlp16", azimuth_step=0.13))) == 0
