@@ -19,14 +19,16 @@ settings alone (the next seeds with vls128 at 0.37-0.40 deg), and no held-out wo
 19-28 and later 29-38 were drawn in order and added before anything was run on them."""
 
 PROBE_SEEDS: tuple[int, ...] = (39, 40, 41, 42, 43, 44, 45, 46, 47, 48, 52, 56, 72, 196, 216, 236,
-                                250, 270, 294, 279, 295, 327)
+                                250, 270, 294, 279, 295, 327, 351, 363, 415, 392, 476, 484)
 """Worlds outside every split that were run and looked into while developing, so they are development
 worlds, not validation: 44, 56 and 72 were drawn by the settings of held-out world 7108 (the next seeds with
 an hdl64 at <= 0.21 deg and >= 2.5 cm noise), and 196, 216 and 236 the same way (the next three such seeds
 after 72; 196 was first run on 2026-12-02); 39-43, 45-48 and 52 were drawn in order as fresh worlds, and
 world 45 drove extractor version 10 (2026-12-04, ``docs/results.md``); 250, 270 and 294 were drawn by the
 settings of second-held-out world 7118 (the first seeds after 236 with a vls128 at >= 0.3 deg and >= 2.5 cm
-noise) and 279, 295 and 327 by those of 7119 (the first vlp16s at <= 0.15 deg after 236), on 2026-12-05. Not in
+noise) and 279, 295 and 327 by those of 7119 (the first vlp16s at <= 0.15 deg after 236), on 2026-12-05 (327
+drove extractor version 14); after version 14, 351, 363 and 415 by those of 7119 again and 392, 476 and 484
+by those of 7108 (the first hdl64s at <= 0.2 deg and >= 2.5 cm noise after 327), that day too. Not in
 :data:`TUNING_SEEDS`, so the tuning tables stay comparable; run them with ``bench_generalization.py --seeds``.
 A new check of how the defaults generalise needs seeds in none of these lists."""
 
