@@ -15,8 +15,8 @@ final defaults generalise. ``--split tuning --seeds`` also takes any other seed 
 held out (a probe world, e.g. one chosen by the settings of a held-out world that misses). Each drive is simulated on first use into
 ``data/sim/<split>/procedural_<seed>`` with per-scan ground truth (``truth/observations.npz``).
 
-The default covers every frame of every world of the split (31 tuning or three times 10 held-out worlds of
-115-260 scans at 10 Hz: 6147, 2198, 2063 and 2110 scans). First use simulates them (10-100 s and 0.1-0.5 GB per
+The default covers every frame of every world of the split (31 tuning or four times 10 held-out worlds of
+115-260 scans at 10 Hz: 6147, 2198, 2063, 2110 and 2155 scans). First use simulates them (10-100 s and 0.1-0.5 GB per
 world), and so does any change to the generator or to the simulator's code. With an empty cache nearly
 all of the run is extraction (the speed is printed); a re-run that changes only fusion settings takes
 about a minute for the tuning split (61 s on 2026-12-03, all three methods).

@@ -5,6 +5,7 @@ import pytest
 from rich.console import Console
 
 from featmap.evaluation.observation_metrics import UncoveredStretches
+from featmap.simulation.splits import HELDOUT_SPLITS
 from tests.repo_scripts import repo_script
 
 
@@ -14,7 +15,7 @@ def bench():
         yield module
 
 
-@pytest.mark.parametrize("split", ["heldout", "heldout2", "heldout3", "heldout4"])
+@pytest.mark.parametrize("split", list(HELDOUT_SPLITS))
 def test_losses_and_variants_are_refused_on_held_out_worlds(bench, tmp_path, capsys, split):
     # refused before anything is simulated or extracted
     assert bench.main(["--split", split, "--losses", "5", "--sim-root", str(tmp_path)]) == 2

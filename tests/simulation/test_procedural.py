@@ -9,8 +9,7 @@ from shapely.geometry import LineString, Polygon
 
 from featmap.simulation.procedural import drive_settings, generate, generate_world
 from featmap.simulation.scene import build_scene
-from featmap.simulation.splits import (FOURTH_HELDOUT_SEEDS, HELDOUT_SEEDS, SECOND_HELDOUT_SEEDS, THIRD_HELDOUT_SEEDS,
-                                       TUNING_SEEDS)
+from featmap.simulation.splits import HELDOUT_SPLITS, TUNING_SEEDS
 from featmap.simulation.worlds import World, building_edges
 
 
@@ -26,7 +25,7 @@ def test_same_seed_same_world_and_settings():
     assert generate_world(TUNING_SEEDS[1]).model_dump() != a.world.model_dump()
 
 
-@pytest.mark.parametrize("seed", HELDOUT_SEEDS + SECOND_HELDOUT_SEEDS + THIRD_HELDOUT_SEEDS + FOURTH_HELDOUT_SEEDS)
+@pytest.mark.parametrize("seed", [seed for seeds in HELDOUT_SPLITS.values() for seed in seeds])
 def test_every_heldout_world_validates_and_builds(seed):
     world = generate_world(seed)
     assert isinstance(world, World) and world.buildings
@@ -73,7 +72,7 @@ def test_far_walls_and_a_clear_route(tuning_worlds):
 
 
 def test_settings_cover_every_sensor_and_the_listed_ranges():
-    for seeds in (TUNING_SEEDS, HELDOUT_SEEDS, SECOND_HELDOUT_SEEDS, THIRD_HELDOUT_SEEDS, FOURTH_HELDOUT_SEEDS):
+    for seeds in (TUNING_SEEDS, *HELDOUT_SPLITS.values()):
         settings = [drive_settings(s) for s in seeds]
         assert {s.sensor.name for s in settings} == {"hdl64", "vlp32", "vls128", "vlp16"}
         for s in settings:
