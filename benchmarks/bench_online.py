@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/bench_online.py                 # all four tables (about 7 minutes)
     .venv/bin/python benchmarks/bench_online.py --docs          # and write them into docs/online.md
     .venv/bin/python benchmarks/bench_online.py --parts revisits --revisits 1 5 20 50 100
-    .venv/bin/python benchmarks/bench_online.py --parts heldout --docs   # not in "all": about 40 minutes
+    .venv/bin/python benchmarks/bench_online.py --parts heldout --docs   # not in "all": about 25 minutes
 
 Parts:
 - ``revisits``: a street grid of 100 walls (featmap.simulation.segments.city_walls) driven K times
@@ -22,9 +22,9 @@ Parts:
   ``--online``) and without, and offline without refinement and with the pose graph: what mapping online
   costs in accuracy, and the pose correction's time per scan.
 - ``heldout``: the causal pose correction against the offline pose graph on drives it was never tuned on:
-  ``benchmarks/bench_pose_noise.py --split heldout --parts sim carmen --methods proposed`` (the ten held-out
-  procedural worlds and the held-out CARMEN log fhw, 0.1 m / 0.2 deg and 0.3 m / 0.5 deg drift, three
-  noise seeds each) once with ``--set refinement.method=fixed_lag`` and once with the default pose graph:
+  ``benchmarks/bench_pose_noise.py --split S --parts sim carmen --methods proposed`` for every held-out
+  split S (``featmap.simulation.splits.HELDOUT_SPLITS``: their procedural worlds, and the held-out CARMEN
+  log fhw of the first, 0.1 m / 0.2 deg and 0.3 m / 0.5 deg drift, three noise seeds each) once with ``--set refinement.method=fixed_lag`` and once with the default pose graph:
   medians over worlds and seeds, the worst world's median, and the trajectory error; for fhw the
   truth-free map metric against its corrected poses. (The fixed-lag settings were chosen on the
   ``noise`` drive above, for speed: accuracy barely moved with them.)
@@ -220,15 +220,20 @@ def part_noise() -> tuple[list[str], list[list[str]]]:
 
 def part_heldout() -> tuple[list[str], list[list[str]], list[str], list[list[str]]]:
     """The held-out pose-noise drives with ``fixed_lag`` and with ``pose_graph`` (see the module doc)."""
+    from featmap.simulation.splits import HELDOUT_SPLITS
+
     levels = ["0.1,0.2", "0.3,0.5"]
-    results = {}
+    results = {name: {"sim": [], "carmen": []} for name in ("fixed_lag", "pose_graph")}
     with tempfile.TemporaryDirectory() as tmp:
-        for name in ("fixed_lag", "pose_graph"):
-            out = Path(tmp) / f"{name}.json"
-            subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_pose_noise.py"), "--split", "heldout",
-                            "--parts", "sim", "carmen", "--methods", "proposed", "--levels", *levels,
-                            "--set", f"refinement.method={name}", "--json", str(out)], check=True, cwd=ROOT)
-            results[name] = json.loads(out.read_text())
+        for split in HELDOUT_SPLITS:
+            for name in results:
+                out = Path(tmp) / f"{split}_{name}.json"
+                subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_pose_noise.py"), "--split", split,
+                                "--parts", "sim", "carmen", "--methods", "proposed", "--levels", *levels,
+                                "--set", f"refinement.method={name}", "--json", str(out)], check=True, cwd=ROOT)
+                found = json.loads(out.read_text())
+                for part in ("sim", "carmen"):
+                    results[name][part] += found.get(part, [])
 
     def med(values):
         values = [v for v in values if v is not None and v == v]
@@ -271,7 +276,8 @@ def part_heldout() -> tuple[list[str], list[list[str]], list[str], list[list[str
             traj = med([r["traj_before" if state == "before" else "traj_after"][0] for r in sel])
             carmen_rows.append([f"{level[0]} m / {level[1]} deg", label, f"{m['precision']:.3f}", f"{m['recall']:.3f}",
                                 f"{m['redundancy']:.3f}", f"{traj:.3f}"])
-    return header, rows, carmen_header, carmen_rows
+    n_worlds = len({r["world"] for r in results["pose_graph"]["sim"]})
+    return header, rows, carmen_header, carmen_rows, n_worlds
 
 
 def markdown(header: list[str], rows: list[list[str]]) -> str:
@@ -311,9 +317,10 @@ def main() -> None:
     for body in tables.values():
         print("\n" + body)
     if "heldout" in args.parts:
-        header, rows, carmen_header, carmen_rows = part_heldout()
-        body = (f"{command} ({stamp}); `bench_pose_noise.py --split heldout --parts sim carmen --methods proposed` "
-                "with each refinement, medians over 10 held-out worlds x 3 noise seeds (worst world: its median "
+        header, rows, carmen_header, carmen_rows, n_worlds = part_heldout()
+        body = (f"{command} ({stamp}); `bench_pose_noise.py --split S --parts sim carmen --methods proposed` for "
+                f"every held-out split S, with each refinement, medians over {n_worlds} held-out worlds x 3 noise "
+                "seeds (worst world: its median "
                 "over the seeds), scored against the simulator's truth:\n\n" + markdown(header, rows))
         if carmen_rows:
             body += ("\n\nThe held-out CARMEN log fhw, drift added to its corrected poses, truth-free metric "

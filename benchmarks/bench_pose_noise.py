@@ -1,6 +1,6 @@
 """Pose-noise benchmark (issue 14): fused maps before and after pose refinement, on drifting poses.
 
-    .venv/bin/python benchmarks/bench_pose_noise.py [--parts sim carmen raw timing] [--split tuning|heldout]
+    .venv/bin/python benchmarks/bench_pose_noise.py [--parts sim carmen raw timing] [--split tuning|heldout|heldout2|...]
         [--seeds S ...] [--levels 0.3,0.5 ...] [--noise-seeds 0 1 2] [--methods all] [--set k=v ...] [--json FILE]
 
 Drift is OXTS-like: a first-order Gauss-Markov process per axis (x, y, yaw) with a 5 s correlation time
@@ -13,8 +13,8 @@ exact drive's (extracted once, through the pipeline's cache): only the poses dif
 Parts (``--parts``, default all but timing):
 
 - ``sim``: simulated drives with ground truth: the default ``residential`` drive (tuning split only) and
-  the procedural worlds of the split (``TUNING_SEEDS`` or ``HELDOUT_SEEDS``; never tune on the held-out
-  ones). For each world, level and noise seed: the EVALUATION.md metrics (count, precision, recall,
+  the procedural worlds of the split (``TUNING_SEEDS`` or one of the held-out splits of
+  ``featmap.simulation.splits.HELDOUT_SPLITS``; never tune on the held-out ones). For each world, level and noise seed: the EVALUATION.md metrics (count, precision, recall,
   offset, corner error) of every fusion method on the exact poses, the drifted poses ("before"), the
   refined poses ("after"), and two references that separate what refinement can fix from what it
   cannot: **floor** = the exact map moved by the rigid motion that best fits the drifted positions
@@ -23,7 +23,8 @@ Parts (``--parts``, default all but timing):
   the rigid motion that best lays it (the first method's map) on the true walls: the refined map's shape;
   trajectory error = mean position / heading error of the sensor poses.
 - ``carmen``: the real CARMEN logs with such drift added to their SLAM-corrected poses (intel and aces
-  in the tuning split, fhw in the held-out split); reference = the corrected poses without refinement.
+  in the tuning split, fhw in the first held-out split; the later held-out splits have no log of their own);
+  reference = the corrected poses without refinement.
   Truth-free map metric (precision, recall, count, redundancy) and trajectory error before / after.
 - ``raw``: the raw wheel-odometry logs (intel, aces): the truth-free metric of the maps from the raw,
   refined and (as a separate log) corrected poses, and for aces the relation error (Kuemmerle et al.
@@ -69,7 +70,7 @@ from featmap.pipeline.executor import local_executor
 from featmap.pipeline.extract import Extraction, extract_source
 from featmap.pipeline.refine import refine_extraction
 from featmap.refinement import planar_difference
-from featmap.simulation.splits import split_seeds
+from featmap.simulation.splits import SPLITS, split_seeds
 from featmap.simulation.simulate import oxts_drift, perturb_poses
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -239,38 +240,65 @@ def simulated_worlds(args, config, executor, console) -> list[World]:
 
 
 def run_sim(args, config, methods, executor, console) -> list[dict]:
+    """Every world's rows (:func:`world_rows`), the worlds spread over the executor's processes (each world's
+    rows are computed in one process, from seeds that name the world: the same numbers in any order)."""
     console.print(f"[b]simulated drives[/b] ({args.split} split)")
+    worlds = simulated_worlds(args, config, executor, console)
+    job = SimJob(levels=tuple(tuple(level) for level in args.levels), noise_seeds=tuple(args.noise_seeds),
+                 methods=tuple(methods), config=config)
     rows = []
-    for w, world in enumerate(simulated_worlds(args, config, executor, console)):
-        e = world.extraction
-        exact = score_truth(e, e.poses, methods, config, world.truth)
-        for li, level in enumerate(args.levels):
-            for k in args.noise_seeds:
-                seed_key = [zlib_id(world.name), li, k]
-                before_poses = drifted(e, level, seed_key, world.T_sensor_body)
-                after_poses, run = refined(e, before_poses, config)
-                floor_poses = rigid_fit(e.poses, before_poses) @ e.poses
-                table = e.world_table(after_poses)
-                reference_map = fuse(methods[0], table.segments, table.scan, config.fusion,
-                                     rms=table.extra.get("rms"), max_gap=table.extra.get("max_gap")).segments
-                walls = world.truth.walls[world.truth.observable()]
-                aligned_poses = align_to_truth(reference_map, walls) @ after_poses
-                row = {"world": world.name, "level": list(level), "noise_seed": k, "scans": len(e.frames),
-                       "exact": exact,
-                       "before": score_truth(e, before_poses, methods, config, world.truth),
-                       "after": score_truth(e, after_poses, methods, config, world.truth),
-                       "floor": score_truth(e, floor_poses, methods, config, world.truth),
-                       "aligned": score_truth(e, aligned_poses, methods, config, world.truth),
-                       "traj_before": trajectory_error(before_poses, e.poses),
-                       "traj_after": trajectory_error(after_poses, e.poses),
-                       "traj_floor": trajectory_error(floor_poses, e.poses),
-                       "refinement": {"applied": bool(run.result.stats.get("applied")), "seconds": run.seconds,
-                                      "keyframes": run.result.stats.get("keyframes"),
-                                      "residual_before_mm": run.result.stats.get("residual_before_mm"),
-                                      "residual_after_mm": run.result.stats.get("residual_after_mm")}}
-                rows.append(row)
-                console.print(f"  {world.name} {level} seed {k}: traj {row['traj_before'][0]:.3f} -> "
-                              f"{row['traj_after'][0]:.3f} m, refinement {run.seconds:.1f} s")
+    for world_rows_ in executor.imap(job, worlds):
+        for row in world_rows_:
+            console.print(f"  {row['world']} {tuple(row['level'])} seed {row['noise_seed']}: traj "
+                          f"{row['traj_before'][0]:.3f} -> {row['traj_after'][0]:.3f} m, refinement "
+                          f"{row['refinement']['seconds']:.1f} s")
+        rows += world_rows_
+    return rows
+
+
+@dataclass(frozen=True)
+class SimJob:
+    """What :func:`world_rows` needs besides the world (picklable: it is sent to worker processes)."""
+
+    levels: tuple
+    noise_seeds: tuple
+    methods: tuple
+    config: object
+
+    def __call__(self, world: World) -> list[dict]:
+        return world_rows(world, self.levels, self.noise_seeds, list(self.methods), self.config)
+
+
+def world_rows(world: World, levels, noise_seeds, methods: list[str], config) -> list[dict]:
+    """One row per drift level and noise seed of ``world``: scores before / after refinement and the
+    references (see the module doc)."""
+    e = world.extraction
+    exact = score_truth(e, e.poses, methods, config, world.truth)
+    rows = []
+    for li, level in enumerate(levels):
+        for k in noise_seeds:
+            seed_key = [zlib_id(world.name), li, k]
+            before_poses = drifted(e, level, seed_key, world.T_sensor_body)
+            after_poses, run = refined(e, before_poses, config)
+            floor_poses = rigid_fit(e.poses, before_poses) @ e.poses
+            table = e.world_table(after_poses)
+            reference_map = fuse(methods[0], table.segments, table.scan, config.fusion,
+                                 rms=table.extra.get("rms"), max_gap=table.extra.get("max_gap")).segments
+            walls = world.truth.walls[world.truth.observable()]
+            aligned_poses = align_to_truth(reference_map, walls) @ after_poses
+            rows.append({"world": world.name, "level": list(level), "noise_seed": k, "scans": len(e.frames),
+                         "exact": exact,
+                         "before": score_truth(e, before_poses, methods, config, world.truth),
+                         "after": score_truth(e, after_poses, methods, config, world.truth),
+                         "floor": score_truth(e, floor_poses, methods, config, world.truth),
+                         "aligned": score_truth(e, aligned_poses, methods, config, world.truth),
+                         "traj_before": trajectory_error(before_poses, e.poses),
+                         "traj_after": trajectory_error(after_poses, e.poses),
+                         "traj_floor": trajectory_error(floor_poses, e.poses),
+                         "refinement": {"applied": bool(run.result.stats.get("applied")), "seconds": run.seconds,
+                                        "keyframes": run.result.stats.get("keyframes"),
+                                        "residual_before_mm": run.result.stats.get("residual_before_mm"),
+                                        "residual_after_mm": run.result.stats.get("residual_after_mm")}})
     return rows
 
 
@@ -284,7 +312,9 @@ def run_carmen(args, config2d, methods, executor, console) -> list[dict]:
     console.print(f"[b]CARMEN logs with drift added to the corrected poses[/b] ({args.split} split)")
     store = SegmentStore(args.cache_dir)
     rows = []
-    for name in CARMEN_LOGS[args.split]:
+    if not CARMEN_LOGS.get(args.split):
+        console.print(f"  no CARMEN log is held out in the {args.split} split: skipped")
+    for name in CARMEN_LOGS.get(args.split, ()):
         path = args.data_dir / "carmen_2d" / f"{name}-corrected.log.gz"
         if not path.exists():
             console.print(f"  {path}: not found, skipped")
@@ -553,6 +583,8 @@ def argv_text(args) -> list[str]:
     out = ["--parts", *args.parts]
     if args.split != "tuning":
         out += ["--split", args.split]
+    if args.methods != "all":
+        out += ["--methods", args.methods]
     return out
 
 
@@ -567,7 +599,7 @@ def _level(text: str) -> tuple[float, float]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--parts", nargs="+", choices=("sim", "carmen", "raw", "timing"), default=["sim", "carmen", "raw"])
-    parser.add_argument("--split", choices=("tuning", "heldout"), default="tuning")
+    parser.add_argument("--split", choices=tuple(SPLITS), default="tuning")
     parser.add_argument("--seeds", type=int, nargs="+", help="a subset of the split's procedural seeds (no residential)")
     parser.add_argument("--levels", type=_level, nargs="+", default=list(LEVELS), help="drift levels METRES,DEGREES")
     parser.add_argument("--noise-seeds", type=int, nargs="+", default=[0, 1, 2])
