@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/bench_online.py                 # all four tables (about 7 minutes)
     .venv/bin/python benchmarks/bench_online.py --docs          # and write them into docs/online.md
     .venv/bin/python benchmarks/bench_online.py --parts revisits --revisits 1 5 20 50 100
-    .venv/bin/python benchmarks/bench_online.py --parts heldout --docs   # not in "all": about 25 minutes
+    .venv/bin/python benchmarks/bench_online.py --parts heldout --docs   # not in "all": about 13 minutes
 
 Parts:
 - ``revisits``: a street grid of 100 walls (featmap.simulation.segments.city_walls) driven K times
@@ -24,7 +24,8 @@ Parts:
 - ``heldout``: the causal pose correction against the offline pose graph on drives it was never tuned on:
   ``benchmarks/bench_pose_noise.py --split S --parts sim carmen --methods proposed`` for every held-out
   split S (``featmap.simulation.splits.HELDOUT_SPLITS``: their procedural worlds, and the held-out CARMEN
-  log fhw of the first, 0.1 m / 0.2 deg and 0.3 m / 0.5 deg drift, three noise seeds each) once with ``--set refinement.method=fixed_lag`` and once with the default pose graph:
+  log fhw of the first, 0.1 m / 0.2 deg and 0.3 m / 0.5 deg drift, three noise seeds each) once with
+  ``--set refinement.method=fixed_lag`` and once with the default pose graph:
   medians over worlds and seeds, the worst world's median, and the trajectory error; for fhw the
   truth-free map metric against its corrected poses. (The fixed-lag settings were chosen on the
   ``noise`` drive above, for speed: accuracy barely moved with them.)
@@ -218,7 +219,7 @@ def part_noise() -> tuple[list[str], list[list[str]]]:
     return header, rows
 
 
-def part_heldout() -> tuple[list[str], list[list[str]], list[str], list[list[str]]]:
+def part_heldout() -> tuple[list[str], list[list[str]], list[str], list[list[str]], int]:
     """The held-out pose-noise drives with ``fixed_lag`` and with ``pose_graph`` (see the module doc)."""
     from featmap.simulation.splits import HELDOUT_SPLITS
 
@@ -320,8 +321,7 @@ def main() -> None:
         header, rows, carmen_header, carmen_rows, n_worlds = part_heldout()
         body = (f"{command} ({stamp}); `bench_pose_noise.py --split S --parts sim carmen --methods proposed` for "
                 f"every held-out split S, with each refinement, medians over {n_worlds} held-out worlds x 3 noise "
-                "seeds (worst world: its median "
-                "over the seeds), scored against the simulator's truth:\n\n" + markdown(header, rows))
+                "seeds (worst world: its median over the seeds), scored against the simulator's truth:\n\n" + markdown(header, rows))
         if carmen_rows:
             body += ("\n\nThe held-out CARMEN log fhw, drift added to its corrected poses, truth-free metric "
                      "(medians over 3 noise seeds):\n\n" + markdown(carmen_header, carmen_rows))

@@ -14,7 +14,8 @@ Parts (``--parts``, default all but timing):
 
 - ``sim``: simulated drives with ground truth: the default ``residential`` drive (tuning split only) and
   the procedural worlds of the split (``TUNING_SEEDS`` or one of the held-out splits of
-  ``featmap.simulation.splits.HELDOUT_SPLITS``; never tune on the held-out ones). For each world, level and noise seed: the EVALUATION.md metrics (count, precision, recall,
+  ``featmap.simulation.splits.HELDOUT_SPLITS``; never tune on the held-out ones), spread over ``--workers``
+  processes. For each world, level and noise seed: the EVALUATION.md metrics (count, precision, recall,
   offset, corner error) of every fusion method on the exact poses, the drifted poses ("before"), the
   refined poses ("after"), and two references that separate what refinement can fix from what it
   cannot: **floor** = the exact map moved by the rigid motion that best fits the drifted positions
@@ -50,6 +51,7 @@ import statistics
 import sys
 import time
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -244,29 +246,15 @@ def run_sim(args, config, methods, executor, console) -> list[dict]:
     rows are computed in one process, from seeds that name the world: the same numbers in any order)."""
     console.print(f"[b]simulated drives[/b] ({args.split} split)")
     worlds = simulated_worlds(args, config, executor, console)
-    job = SimJob(levels=tuple(tuple(level) for level in args.levels), noise_seeds=tuple(args.noise_seeds),
-                 methods=tuple(methods), config=config)
+    job = partial(world_rows, levels=args.levels, noise_seeds=args.noise_seeds, methods=methods, config=config)
     rows = []
-    for world_rows_ in executor.imap(job, worlds):
-        for row in world_rows_:
+    for per_world in executor.imap(job, worlds):
+        for row in per_world:
             console.print(f"  {row['world']} {tuple(row['level'])} seed {row['noise_seed']}: traj "
                           f"{row['traj_before'][0]:.3f} -> {row['traj_after'][0]:.3f} m, refinement "
                           f"{row['refinement']['seconds']:.1f} s")
-        rows += world_rows_
+        rows += per_world
     return rows
-
-
-@dataclass(frozen=True)
-class SimJob:
-    """What :func:`world_rows` needs besides the world (picklable: it is sent to worker processes)."""
-
-    levels: tuple
-    noise_seeds: tuple
-    methods: tuple
-    config: object
-
-    def __call__(self, world: World) -> list[dict]:
-        return world_rows(world, self.levels, self.noise_seeds, list(self.methods), self.config)
 
 
 def world_rows(world: World, levels, noise_seeds, methods: list[str], config) -> list[dict]:
