@@ -5,6 +5,14 @@ The ground (flat z = 0, or a sloped plane with raised sidewalks and curb faces, 
 on a wall maps back to its footprint edge), with roofs; fences as thin boxes; cars as boxes; poles as
 cylinders; trees as a trunk cylinder and a spherical crown; hedges as rows of jittered boxes.
 
+Foliage (a tree's crown, a hedge) may be porous (``crown_porosity`` / ``porosity``, ``crown_depth_m`` /
+``depth_m`` of the world's objects): a ray that reaches it passes through with that probability, and
+then returns from whatever the scene holds behind with every porous mesh taken away (a second crown or
+hedge behind the first is passed too: an approximation); else it returns from an exponentially
+distributed depth inside it (at most :data:`FOLIAGE_MAX_DEPTHS` mean depths), so its returns scatter in
+depth and some rays reach the wall behind, as with real leaves. With no porous object in a world the
+scene, the rays and the random draws are what they were without this (the drives stay byte for byte).
+
 On sloped ground every object stands on the ground beneath it: a building's walls reach from
 below its lowest footprint corner to ``height`` above its highest one; fences and hedges are cut
 into pieces of at most :data:`SLOPE_PIECE_M` that each follow the ground, sunk
@@ -13,7 +21,7 @@ into pieces of at most :data:`SLOPE_PIECE_M` that each follow the ground, sunk
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -25,6 +33,7 @@ REFLECTANCE = {"ground": 0.12, "building": 0.32, "roof": 0.3, "fence": 0.4, "car
 SLOPE_PIECE_M = 1.0
 SLOPE_SINK_M = 0.15
 HEDGE_BOX_M = 0.7           # longest box of a hedge (its segments are cut into equal boxes up to this long)
+FOLIAGE_MAX_DEPTHS = 3.0    # a ray stopped by foliage returns from at most this many mean depths inside it
 
 
 @dataclass
@@ -36,12 +45,15 @@ class SceneIndex:
         wall_geometry_id: geometry id of the mesh holding every building wall.
         wall_edge_of_triangle: (T,) index into ``edges`` of each triangle of that mesh.
         edges: every building wall (see :func:`building_edges`).
+        foliage: geometry id -> (T, 2) porosity and mean depth (m) of each triangle of that mesh, for the
+            meshes holding porous foliage (empty: none).
     """
 
     kinds: dict[int, str]
     wall_geometry_id: int
     wall_edge_of_triangle: np.ndarray
     edges: list[dict]
+    foliage: dict[int, np.ndarray] = field(default_factory=dict)
 
 
 def building_levels(world: World, surface: GroundSurface | None = None) -> list[tuple[float, float]]:
@@ -137,8 +149,9 @@ def _hedge_boxes(hedge, surface: GroundSurface) -> list:
     return out
 
 
-def _clutter_meshes(world: World, surface: GroundSurface | None = None) -> dict[str, list]:
-    """Meshes of every non-building object by kind; on flat ground everything stands on z = 0."""
+def _clutter_meshes(world: World, surface: GroundSurface | None = None) -> tuple[dict[str, list], dict[str, list]]:
+    """Meshes of every non-building object by kind, and each mesh's (porosity, mean depth) in the same
+    order (see the module docstring; (0, 0) = solid); on flat ground everything stands on z = 0."""
     import open3d as o3d
 
     surface = surface or GroundSurface(world.ground)
@@ -148,6 +161,8 @@ def _clutter_meshes(world: World, surface: GroundSurface | None = None) -> dict[
         return 0.0 if flat else float(surface.height(np.asarray(xy, float))[0])
 
     out: dict[str, list] = {"fence": [], "car": [], "pole": [], "tree": [], "hedge": []}
+    solid = (0.0, 0.0)
+    foliage: dict[str, list] = {kind: [] for kind in out}
     for f in world.of_kind("fence"):
         line = np.asarray(f.line, float)
         for a, b in zip(line[:-1], line[1:]):
@@ -180,13 +195,19 @@ def _clutter_meshes(world: World, surface: GroundSurface | None = None) -> dict[
         crown = o3d.geometry.TriangleMesh.create_sphere(t.crown_radius, resolution=10)
         crown.translate((t.position[0], t.position[1], z0 + t.trunk_height + 0.8 * t.crown_radius))
         out["tree"] += [trunk, crown]
+        foliage["tree"] += [solid, (t.crown_porosity, t.crown_depth_m)]
     for h in world.of_kind("hedge"):
-        out["hedge"] += _hedge_boxes(h, surface)
-    return out
+        boxes = _hedge_boxes(h, surface)
+        out["hedge"] += boxes
+        foliage["hedge"] += [(h.porosity, h.depth_m)] * len(boxes)
+    for kind, meshes in out.items():
+        foliage[kind] += [solid] * (len(meshes) - len(foliage[kind]))
+    return out, foliage
 
 
-def build_scene(world: World, ground_margin_m: float = 200.0):
-    """Return (``open3d.t.geometry.RaycastingScene``, :class:`SceneIndex`) for ``world``."""
+def build_scene(world: World, ground_margin_m: float = 200.0, without_foliage: bool = False):
+    """Return (``open3d.t.geometry.RaycastingScene``, :class:`SceneIndex`) for ``world``; with
+    ``without_foliage``, every porous mesh is left out (what a ray passing through foliage reaches)."""
     import open3d as o3d
 
     scene = o3d.t.geometry.RaycastingScene()
@@ -217,11 +238,20 @@ def build_scene(world: World, ground_margin_m: float = 200.0):
         roof_v, roof_t = _roof_mesh(world, [top for _, top in levels])
         if len(roof_t):
             add("roof", roof_v, roof_t)
-    for kind, meshes in _clutter_meshes(world, surface).items():
+    meshes_by_kind, foliage_by_kind = _clutter_meshes(world, surface)
+    foliage = {}
+    for kind, meshes in meshes_by_kind.items():
+        porous = [f != (0.0, 0.0) for f in foliage_by_kind[kind]]
+        if without_foliage:
+            meshes = [m for m, p in zip(meshes, porous) if not p]
         verts, tris = _merge(meshes)
         if len(tris):
-            add(kind, verts, tris)
-    return scene, SceneIndex(kinds=kinds, wall_geometry_id=wall_gid, wall_edge_of_triangle=owner, edges=edges)
+            gid = add(kind, verts, tris)
+            if any(porous) and not without_foliage:
+                per_mesh = np.asarray(foliage_by_kind[kind], float)
+                foliage[gid] = np.repeat(per_mesh, [len(m.triangles) for m in meshes], axis=0)
+    return scene, SceneIndex(kinds=kinds, wall_geometry_id=wall_gid, wall_edge_of_triangle=owner, edges=edges,
+                             foliage=foliage)
 
 
 def cast(scene, origin: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -237,3 +267,27 @@ def cast(scene, origin: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray,
     hit = scene.cast_rays(o3d.core.Tensor(rays))
     return (hit["t_hit"].numpy(), hit["geometry_ids"].numpy().astype(np.int64),
             hit["primitive_ids"].numpy().astype(np.int64))
+
+
+def through_foliage(t_hit: np.ndarray, gid: np.ndarray, prim: np.ndarray, index: SceneIndex,
+                    rng: np.random.Generator, cast_without_foliage) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The hits of :func:`cast` ((R,) distance, geometry id, primitive id; ``index``'s ids) with porous
+    foliage applied (module docstring): rays that pass are cast again by ``cast_without_foliage(rows)``,
+    which returns their (distance, geometry id in ``index``, primitive id) in a scene without the porous
+    meshes; the others that foliage stopped return from inside it. ``rng`` draws R uniforms and one
+    exponential per stopped ray, in that order. Returns new arrays; the inputs are not changed."""
+    t_hit, gid, prim = t_hit.copy(), gid.copy(), prim.copy()
+    porosity = np.zeros(len(t_hit))
+    depth = np.zeros(len(t_hit))
+    for g, per_triangle in index.foliage.items():
+        on = gid == g
+        porosity[on] = per_triangle[prim[on], 0]
+        depth[on] = per_triangle[prim[on], 1]
+    through = rng.random(len(t_hit)) < porosity
+    if through.any():
+        rows = np.flatnonzero(through)
+        t_hit[rows], gid[rows], prim[rows] = cast_without_foliage(rows)
+    stopped = np.flatnonzero(~through & (depth > 0) & np.isfinite(t_hit))
+    extra = rng.exponential(1.0, len(stopped)) * depth[stopped]
+    t_hit[stopped] += np.minimum(extra, FOLIAGE_MAX_DEPTHS * depth[stopped])
+    return t_hit, gid, prim

@@ -46,12 +46,13 @@ from featmap.io.kitti_raw import (drive_paths, format_oxts_packet, write_calib_f
 from featmap.io.sim_truth import COVERAGE_BIN_M, OBSERVATIONS_FILE, observed_intervals, write_coverage, write_observations
 from featmap.simulation.ground import GroundSurface
 from featmap.simulation.observations import concatenate, observe_scan
-from featmap.simulation.scene import REFLECTANCE, build_scene, cast
+from featmap.simulation.scene import REFLECTANCE, build_scene, cast, through_foliage
 from featmap.simulation.sensors import SENSORS, SensorPreset
 from featmap.simulation.trajectory import sample_poses
 from featmap.simulation.worlds import World, _open_ring
 
 SIM_DATE = "2000_01_01"
+FOLIAGE_STREAM = 0xF011A6E     # the second key of the porous foliage's random stream: default_rng([seed, this])
 """Simulated drives use this date, so they never collide with a real KITTI drive."""
 
 
@@ -310,6 +311,7 @@ def _simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_
     geo = GeoFrame(float(lat0), lon0, 100.0)
 
     scene, index = build_scene(world)
+    foliage_cast = _foliage_caster(world, index, seed) if index.foliage else None
     directions = sensor.ray_directions()
     edges = index.edges
     n_bins = np.array([max(1, int(np.ceil(np.linalg.norm(e["q"] - e["p"]) / COVERAGE_BIN_M))) for e in edges], np.int64)
@@ -342,6 +344,8 @@ def _simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_
         R, origin = T_w_velo[:3, :3], T_w_velo[:3, 3]
         directions_w = directions @ R.T
         t_hit, gid, prim = cast(scene, origin, directions_w)
+        if foliage_cast is not None:
+            t_hit, gid, prim = foliage_cast(t_hit, gid, prim, origin, directions_w)
         keep = np.isfinite(t_hit) & (t_hit <= sensor.max_range_m) & (t_hit >= sensor.min_range_m)
         if dropout > 0:
             keep &= rng.random(len(t_hit)) >= dropout
@@ -411,6 +415,28 @@ def _simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_
                  err_x, err_y, err_yaw, params, trajectory_z)
     os.replace(drive_tmp, final_dir)
     return SimulatedDrive(out_root, SIM_DATE, drive_id, n)
+
+
+def _foliage_caster(world: World, index, seed: int):
+    """``(t_hit, gid, prim, origin, directions_w) -> (t_hit, gid, prim)`` applying the world's porous foliage
+    (:func:`featmap.simulation.scene.through_foliage`) with its own random stream (``seed``'s, so the drive's
+    other draws stay as they are), rays passing through foliage cast again in the scene without it."""
+    bare_scene, bare_index = build_scene(world, without_foliage=True)
+    gid_of_kind = {kind: g for g, kind in index.kinds.items()}
+    to_full = {g: gid_of_kind[kind] for g, kind in bare_index.kinds.items()}
+    rng = np.random.default_rng([seed, FOLIAGE_STREAM])
+
+    def apply(t_hit, gid, prim, origin, directions_w):
+        def cast_without_foliage(rows):
+            t2, g2, p2 = cast(bare_scene, origin, directions_w[rows])
+            mapped = g2.copy()
+            for g_bare, g_full in to_full.items():
+                mapped[g2 == g_bare] = g_full
+            return t2, mapped, p2
+
+        return through_foliage(t_hit, gid, prim, index, rng, cast_without_foliage)
+
+    return apply
 
 
 def _observe(frame: int, wall_rays: np.ndarray, origin: np.ndarray, directions_w: np.ndarray, t_hit: np.ndarray,

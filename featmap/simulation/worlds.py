@@ -11,8 +11,8 @@ A world is data, not code. The YAML form (coordinates in metres, x east, y north
       - {id: f1, kind: fence, line: [[0, -5], [10, -5]], height: 1.2}
       - {id: c1, kind: car, position: [5, -9], heading_deg: 0}        # size: [4.5, 1.8, 1.5]
       - {id: p1, kind: pole, position: [12, -8], height: 6}
-      - {id: t1, kind: tree, position: [20, -8]}
-      - {id: h1, kind: hedge, line: [[0, -4], [8, -4]], height: 1.1, width: 0.8}
+      - {id: t1, kind: tree, position: [20, -8]}                        # crown_porosity: 0.3, crown_depth_m: 0.4
+      - {id: h1, kind: hedge, line: [[0, -4], [8, -4]], height: 1.1, width: 0.8}   # porosity, depth_m
     ground: {grade: [0.02, 0.0], curb_height: 0.12,                    # optional; flat z = 0 without it
              streets: [{line: [[-40, -15], [70, -15]], width: 8}]}
 
@@ -95,6 +95,10 @@ class Tree(_Obj):
     trunk_radius: float = Field(0.2, gt=0)
     trunk_height: float = Field(2.5, gt=0)
     crown_radius: float = Field(2.0, gt=0)
+    crown_porosity: float = Field(0.0, ge=0, lt=1, description="share of the rays reaching the crown that pass "
+                                  "through it (foliage; 0 = a solid sphere)")
+    crown_depth_m: float = Field(0.0, ge=0, description="mean depth (exponential) inside the crown at which a ray it "
+                                 "stops returns (0 = at its surface)")
 
 
 class Hedge(_Obj):
@@ -106,6 +110,10 @@ class Hedge(_Obj):
     width: float = Field(0.8, gt=0)
     irregularity: float = Field(0.15, ge=0, description="metres: std of the jitter of each box's height, width and position")
     seed: int = Field(0, description="seeds the jitter (same seed, same hedge)")
+    porosity: float = Field(0.0, ge=0, lt=1, description="share of the rays reaching the hedge that pass through it "
+                            "(0 = solid boxes)")
+    depth_m: float = Field(0.0, ge=0, description="mean depth (exponential) inside the hedge at which a ray it stops "
+                           "returns (0 = at its surface)")
 
 
 WorldObject = Annotated[Union[Building, Fence, Car, Pole, Tree, Hedge], Field(discriminator="kind")]

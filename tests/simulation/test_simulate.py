@@ -188,3 +188,102 @@ def test_a_drive_that_starts_across_the_date_line_is_placed_there(tmp_path):
 
     origin = json.loads((drive.drive_dir / "truth" / "simulation.json").read_text())["geo_origin"]
     assert -180.0 < origin["lon0_deg"] < -179.999 and origin["lat0_deg"] == pytest.approx(10.0, abs=1e-6)
+
+
+HEDGE_Y = 8.0       # the hedge's centre line, 4 m in front of the wall
+HEDGE_H = 1.5
+
+
+def _hedge_world(porosity: float = 0.0, depth_m: float = 0.0):
+    world = _single_wall_world().model_dump(mode="json", exclude_none=True)
+    hedge = {"id": "h", "kind": "hedge", "line": [[-20, HEDGE_Y], [60, HEDGE_Y]], "height": HEDGE_H, "width": 0.8,
+             "irregularity": 0.0}
+    if porosity or depth_m:
+        hedge.update(porosity=porosity, depth_m=depth_m)
+    world["objects"] = world["objects"] + [hedge]
+    return world_from_dict(world, "hedge.yaml")
+
+
+def _hedge_returns(tmp_path, name, world):
+    import pykitti
+
+    drive = simulate_drive(world, tmp_path / name, SENSORS["hdl64"], n_frames=2, noise_m=0.005, seed=2)
+    _, pts = _world_points(drive, 0)
+    data = pykitti.raw(str(drive.root), drive.date, drive.drive_id)
+    origin = (data.oxts[0].T_w_imu @ np.linalg.inv(data.calib.T_velo_imu))[:3, 3]
+    ground_z = np.median(pts[np.abs(pts[:, 1]) < 3, 2])                  # the road's returns (this frame's z)
+    pts = pts[(pts[:, 0] > 5) & (pts[:, 0] < 35) & (pts[:, 1] > 5)]
+    # where each ray crosses the hedge's line, and how high above the ground it is there
+    s = (HEDGE_Y - origin[1]) / (pts[:, 1] - origin[1])
+    z_at_hedge = origin[2] + s * (pts[:, 2] - origin[2]) - ground_z
+    through_hedge = (z_at_hedge < HEDGE_H - 0.2) & (z_at_hedge > 0.2)
+    return pts, through_hedge, origin
+
+
+def test_a_porous_hedge_lets_rays_through_to_the_wall_and_returns_from_inside(tmp_path):
+    solid, solid_through, solid_origin = _hedge_returns(tmp_path, "solid", _hedge_world())
+    porous, porous_through, porous_origin = _hedge_returns(tmp_path, "porous", _hedge_world(porosity=0.4, depth_m=0.3))
+    on_wall = lambda p: np.abs(p[:, 1] - WALL_Y) < 0.05     # noqa: E731
+    on_hedge = lambda p: np.abs(p[:, 1] - HEDGE_Y) < 1.5    # noqa: E731
+    # a solid hedge hides the wall below its top; a porous one lets about 40 % of those rays reach it
+    assert (on_wall(solid) & solid_through).sum() == 0
+    aimed = porous_through & (on_wall(porous) | on_hedge(porous))
+    share = (on_wall(porous) & porous_through).sum() / aimed.sum()
+    assert aimed.sum() > 500 and 0.3 < share < 0.5
+    # the rays it stops return from inside it, at an exponential depth of mean 0.3 m along the ray (median
+    # 0.3 ln 2), never more than 3 mean depths; a solid hedge returns from its face (y = HEDGE_Y - 0.4)
+    def depth_along_ray(pts, origin):
+        ray = pts - origin
+        return (pts[:, 1] - (HEDGE_Y - 0.4)) * np.linalg.norm(ray, axis=1) / ray[:, 1]
+
+    stopped = lambda p, through: through & (np.abs(p[:, 1] - HEDGE_Y) < 0.6)   # noqa: E731
+    assert np.abs(depth_along_ray(solid[stopped(solid, solid_through)], solid_origin)).max() < 0.03
+    inside = depth_along_ray(porous[stopped(porous, porous_through)], porous_origin)
+    assert abs(np.median(inside) - 0.3 * np.log(2)) < 0.04 and -0.03 < inside.min() and inside.max() < 0.93
+
+
+def test_porosity_must_be_below_one_and_the_depth_not_negative():
+    from featmap.errors import WorldError
+
+    with pytest.raises(WorldError, match="porosity"):
+        _hedge_world(porosity=1.0)
+    with pytest.raises(WorldError, match="depth_m"):
+        _hedge_world(depth_m=-0.1)
+
+
+def test_a_world_without_porous_foliage_simulates_as_before(tmp_path):
+    """Porosity 0 takes no extra random draws: the drive is byte for byte the one without the fields."""
+    plain = simulate_drive(_hedge_world(), tmp_path / "a", SENSORS["vlp32"], n_frames=2, noise_m=0.02, seed=4)
+    world = _hedge_world().model_dump(mode="json", exclude_none=True)
+    world["objects"][-1].update(porosity=0.0, depth_m=0.0)
+    explicit = simulate_drive(world_from_dict(world, "hedge.yaml"), tmp_path / "b", SENSORS["vlp32"], n_frames=2,
+                              noise_m=0.02, seed=4)
+    assert _digest(plain.root) == _digest(explicit.root)
+
+
+def test_a_porous_crown_lets_rays_through_but_its_trunk_does_not(tmp_path):
+    world = _single_wall_world().model_dump(mode="json", exclude_none=True)
+    # a low tree 8 m away, so that the HDL-64E's beams (+2 to -24.8 deg) reach its crown: the trunk up to
+    # 1 m, the crown's centre 1 m + 0.8 x 1.5 m up
+    tree = {"id": "t", "kind": "tree", "position": [12, 8], "trunk_radius": 0.4, "trunk_height": 1.0,
+            "crown_radius": 1.5, "crown_porosity": 0.5}
+    world["objects"] = world["objects"] + [tree]
+    drive = simulate_drive(world_from_dict(world, "tree.yaml"), tmp_path, SENSORS["hdl64"], n_frames=2,
+                           noise_m=0.005, seed=3)
+    _, pts = _world_points(drive, 0)
+    import pykitti
+
+    data = pykitti.raw(str(drive.root), drive.date, drive.drive_id)
+    origin = (data.oxts[0].T_w_imu @ np.linalg.inv(data.calib.T_velo_imu))[:3, 3]
+    ground_z = np.median(pts[np.abs(pts[:, 1]) < 3, 2])
+    # each return's ray where it crosses the tree's line y = 8: within the trunk, or within the crown's core
+    ray = pts - origin
+    s = (8.0 - origin[1]) / ray[:, 1]
+    at = origin + s[:, None] * ray
+    ahead = (pts[:, 1] > 6) & (s > 0) & (s < 1.2)
+    height = at[:, 2] - ground_z
+    trunk = ahead & (np.abs(at[:, 0] - 12) < 0.2) & (height > 0.2) & (height < 0.6)     # below the crown
+    crown_core = ahead & (np.abs(at[:, 0] - 12) < 0.8) & (height > 1.3) & (height < 2.6)  # above the trunk
+    on_wall = np.abs(pts[:, 1] - WALL_Y) < 0.05
+    assert trunk.sum() > 20 and not (trunk & on_wall).any()
+    assert crown_core.sum() > 200 and 0.4 < (crown_core & on_wall).sum() / crown_core.sum() < 0.6
