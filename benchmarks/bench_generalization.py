@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_generalization.py [--split tuning|heldout|heldout2|heldout3|heldout4] [--seeds S ...]
         [--frames a:b:c] [--workers 2] [--set key=value ...] [--cache-dir DIR] [--no-cache] [--json FILE] [--docs]
-        [--losses K] [--variant "key=value [key=value ...]" ...]
+        [--losses K] [--variant "key=value [key=value ...]" ...] [--foliage CP,CD,HP,HD]
 
 Worlds come from :mod:`featmap.simulation.procedural` (house rows, apartment blocks, courtyards,
 side streets, far walls 50-100 m away, cars, fences, hedges, poles, trees, sloped streets with
@@ -21,6 +21,10 @@ world), and so does any change to the generator or to the simulator's code. With
 all of the run is extraction (the speed is printed); a re-run that changes only fusion settings takes
 about a minute for the tuning split (61 s on 2026-12-03, all three methods).
 ``--frames ::2`` halves the scans (fused maps then see each wall from half as many places).
+``--foliage 0.3,0.3,0.15,0.2`` runs the same worlds with every tree crown and hedge porous
+(:func:`featmap.simulation.worlds.with_porous_foliage`: the share of rays passing a crown, the mean depth
+inside it at which the others return, the same for hedges), simulated into
+``data/sim/<split>_foliage_<values>/`` (the generator's worlds have solid foliage).
 
 Per world and overall it prints:
 
@@ -65,7 +69,7 @@ import shutil
 import statistics
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -87,6 +91,7 @@ from featmap.pipeline.extract import extract_source
 from featmap.simulation.procedural import generate
 from featmap.simulation.splits import HELDOUT_SPLITS, SPLITS, held_out_seeds, split_seeds
 from featmap.simulation.simulate import SIM_DATE, simulate_drive, simulation_fingerprint
+from featmap.simulation.worlds import with_porous_foliage
 
 DRIVE = f"{SIM_DATE}_drive_0001"
 MAX_WORKERS = 2
@@ -98,44 +103,53 @@ CHANGED = 0.002
 
 # --- drives ------------------------------------------------------------------------------------------
 
-def _fingerprint(seed: int) -> str:
-    """What a cached drive was made from: the world, its settings and the simulator's source."""
+def _generated(seed: int, foliage: tuple[float, ...] | None = None):
+    """``seed``'s world and settings; with ``foliage`` (crown porosity, crown depth m, hedge porosity, hedge
+    depth m), every tree crown and hedge of the world made porous."""
     g = generate(seed)
+    return g if foliage is None else replace(g, world=with_porous_foliage(g.world, *foliage))
+
+
+def _fingerprint(seed: int, foliage: tuple[float, ...] | None = None) -> str:
+    """What a cached drive was made from: the world, its settings and the simulator's source."""
+    g = _generated(seed, foliage)
     return simulation_fingerprint({"world": g.world.model_dump(mode="json"), "sensor": g.settings.sensor.__dict__,
                                    "noise_m": g.settings.noise_m, "dropout": g.settings.dropout,
                                    "seed": g.settings.seed})
 
 
-def drive_root(sim_root: Path, split: str, seed: int) -> Path:
-    return sim_root / split / f"procedural_{seed}"
+def drive_root(sim_root: Path, split: str, seed: int, foliage: tuple[float, ...] | None = None) -> Path:
+    """Where ``seed``'s drive is cached (worlds with porous foliage apart from the generator's own)."""
+    folder = split if foliage is None else f"{split}_foliage_{'_'.join(f'{v:g}' for v in foliage)}"
+    return sim_root / folder / f"procedural_{seed}"
 
 
-def is_current(sim_root: Path, split: str, seed: int) -> bool:
+def is_current(sim_root: Path, split: str, seed: int, foliage: tuple[float, ...] | None = None) -> bool:
     """True when ``seed``'s drive is cached and was simulated from the world the generator makes now."""
-    root = drive_root(sim_root, split, seed)
+    root = drive_root(sim_root, split, seed, foliage)
     stamp = root / "generator.json"
     done = (root / SIM_DATE / f"{DRIVE}_sync" / "truth" / "observations.npz").exists()
-    return done and stamp.exists() and json.loads(stamp.read_text()).get("fingerprint") == _fingerprint(seed)
+    return done and stamp.exists() and json.loads(stamp.read_text()).get("fingerprint") == _fingerprint(seed, foliage)
 
 
-def ensure_drive(sim_root: Path, split: str, seed: int) -> Path:
+def ensure_drive(sim_root: Path, split: str, seed: int, foliage: tuple[float, ...] | None = None) -> Path:
     """The KITTI raw root of ``seed``'s drive, simulated (with per-scan truth) if missing or stale."""
-    root = drive_root(sim_root, split, seed)
-    if is_current(sim_root, split, seed):
+    root = drive_root(sim_root, split, seed, foliage)
+    if is_current(sim_root, split, seed, foliage):
         return root
     if root.exists():
         shutil.rmtree(root)
-    g = generate(seed)
+    g = _generated(seed, foliage)
     s = g.settings
     simulate_drive(g.world, root, s.sensor, noise_m=s.noise_m, dropout=s.dropout, seed=s.seed, scan_observations=True)
-    (root / "generator.json").write_text(json.dumps({"seed": seed, "fingerprint": _fingerprint(seed)}))
+    (root / "generator.json").write_text(json.dumps({"seed": seed, "fingerprint": _fingerprint(seed, foliage)}))
     return root
 
 
 def _simulate_task(args) -> tuple[int, float]:
-    sim_root, split, seed = args
+    sim_root, split, seed, foliage = args
     start = time.perf_counter()
-    ensure_drive(Path(sim_root), split, seed)
+    ensure_drive(Path(sim_root), split, seed, foliage)
     return seed, time.perf_counter() - start
 
 
@@ -438,6 +452,17 @@ def markdown_summary(results: list[WorldResult], methods: list[str], split: str,
 
 # --- main --------------------------------------------------------------------------------------------
 
+def _foliage(text: str) -> tuple[float, float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 4 or not (0 <= values[0] < 1 and 0 <= values[2] < 1 and values[1] >= 0 and values[3] >= 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected CROWN_POROSITY,CROWN_DEPTH_M,HEDGE_POROSITY,"
+                                         "HEDGE_DEPTH_M with porosities in [0, 1) and depths >= 0, e.g. 0.3,0.3,0.15,0.2")
+    return values
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--split", choices=tuple(SPLITS), default="tuning")
@@ -457,6 +482,10 @@ def main(argv: list[str] | None = None) -> int:
                              "how the drive saw it, and the K longest uncovered stretches (not on held-out splits)")
     parser.add_argument("--docs", action="store_true",
                         help="write the summary into docs/results.md (block generalization_<split>)")
+    parser.add_argument("--foliage", type=_foliage, metavar="CP,CD,HP,HD",
+                        help="make every tree crown and hedge porous: crown porosity, crown depth (m), hedge "
+                             "porosity, hedge depth (m), e.g. 0.3,0.3,0.15,0.2 (drives cached apart; --docs writes "
+                             "block generalization_<split>_foliage)")
     parser.add_argument("--variant", action="append", default=[], metavar='"KEY=VALUE ..."',
                         help="also run the worlds with these settings on top of --set and compare (repeatable; "
                              "not on held-out splits, nor with --docs)")
@@ -480,7 +509,7 @@ def score_split(args, seeds: list[int], config, methods: list[str], store: Segme
     extracted_now = 0
     with (ProcessExecutor(workers) if workers > 1 else SerialExecutor()) as executor:
         for seed in seeds:
-            ds = KittiRawDataset(drive_root(args.sim_root, args.split, seed), DRIVE, args.frames)
+            ds = KittiRawDataset(drive_root(args.sim_root, args.split, seed, args.foliage), DRIVE, args.frames)
             extraction = extract_source(ds, config.extraction, store, executor)
             table = extraction.world_table()
             frames_of[seed] = extraction.frames
@@ -492,7 +521,7 @@ def score_split(args, seeds: list[int], config, methods: list[str], store: Segme
     for seed in seeds:
         acc = per_seed[seed]
         table = acc["table"]
-        root = drive_root(args.sim_root, args.split, seed)
+        root = drive_root(args.sim_root, args.split, seed, args.foliage)
         scored = score_world(root, frames_of[seed], table, config, methods, losses=losses)
         g = generate(seed).settings
         label = f"{g.sensor.name} {g.sensor.azimuth_step_deg:.2f}° {100 * g.noise_m:.1f}cm {100 * g.dropout:.0f}%"
@@ -528,6 +557,9 @@ def _run(args, console: Console) -> int:
         stray = [s for s in seeds if s not in allowed]
         if stray:
             raise FeatmapError(f"--seeds {stray}: not in the {args.split} split ({', '.join(map(str, allowed))})")
+    if args.foliage and args.docs and args.losses:
+        raise FeatmapError("--losses with --foliage and --docs: the docs' loss tables are the generator's worlds'; "
+                           "run the losses of porous worlds without --docs")
     if args.variant and args.docs:
         raise FeatmapError("--variant with --docs: the docs hold the configuration without variants; "
                            "run the variants without --docs")
@@ -538,16 +570,18 @@ def _run(args, console: Console) -> int:
     extractor = config.extraction.method_3d
     store = SegmentStore(None if args.no_cache else args.cache_dir)
     console.print(f"{args.split} split: {len(seeds)} world(s) (seeds {', '.join(map(str, seeds))}), frames "
-                  f"{args.frames or 'all'}, extractor {extractor}, {workers} worker(s)")
+                  f"{args.frames or 'all'}, extractor {extractor}, {workers} worker(s)"
+                  + (f", porous foliage {','.join(f'{v:g}' for v in args.foliage)}" if args.foliage else ""))
     ctx = mp.get_context("spawn")            # Open3D and fork do not mix
 
-    missing = [s for s in seeds if not is_current(args.sim_root, args.split, s)]
+    missing = [s for s in seeds if not is_current(args.sim_root, args.split, s, args.foliage)]
     if missing:
-        console.print(f"simulating {len(missing)} {args.split} world(s) into {args.sim_root / args.split} "
-                      "(first use, or the generator changed them)")
+        console.print(f"simulating {len(missing)} {args.split} world(s) into "
+                      f"{drive_root(args.sim_root, args.split, 0, args.foliage).parent} (first use, or the generator "
+                      "changed them)")
     start = time.perf_counter()
     with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-        for seed, seconds in pool.map(_simulate_task, [(str(args.sim_root), args.split, s) for s in seeds]):
+        for seed, seconds in pool.map(_simulate_task, [(str(args.sim_root), args.split, s, args.foliage) for s in seeds]):
             if seed in missing:
                 console.print(f"  procedural_{seed}: {seconds:.0f} s")
     if missing:
@@ -576,9 +610,13 @@ def _run(args, console: Console) -> int:
         command = f"`.venv/bin/python benchmarks/bench_generalization.py --split {args.split}"
         if args.losses:
             command += f" --losses {args.losses}"
-        replace_block(results_md, f"generalization_{args.split}",
-                      f"{command} --docs`: " + markdown_summary(results, methods, args.split, args.frames))
-        console.print(f"wrote the {args.split} summary into docs/results.md")
+        block, label = f"generalization_{args.split}", args.split
+        if args.foliage:
+            values = ",".join(f"{v:g}" for v in args.foliage)
+            command += f" --foliage {values}"
+            block, label = f"{block}_foliage", f"{args.split} (every crown and hedge porous: {values})"
+        replace_block(results_md, block, f"{command} --docs`: " + markdown_summary(results, methods, label, args.frames))
+        console.print(f"wrote the {label} summary into docs/results.md")
         if args.losses:
             replace_block(results_md, "generalization_losses",
                           f"{command} --docs` ({args.split} worlds, seeds {', '.join(map(str, seeds))}):\n\n"
@@ -588,7 +626,7 @@ def _run(args, console: Console) -> int:
     if args.json:
         from featmap.io.atomic import atomic_write_text
 
-        payload = {"split": args.split, "frames": args.frames, "extractor": extractor, "workers": workers,
+        payload = {"split": args.split, "foliage": args.foliage, "frames": args.frames, "extractor": extractor, "workers": workers,
                    "extraction_wall_seconds": wall_seconds,
                    "worlds": [_world_json(r) for r in results],
                    "variants": [{"variant": text, "worlds": [_world_json(r) for r in rs]} for text, rs in compared]}

@@ -83,6 +83,8 @@ STEPS = (
           {"extraction_3d", "simulation", *MAPPING}, "generalization_heldout3"),
     _step("generalization_heldout4", "benchmarks/bench_generalization.py --split heldout4 --docs",
           {"extraction_3d", "simulation", *MAPPING}, "generalization_heldout4"),
+    _step("generalization_tuning_foliage", "benchmarks/bench_generalization.py --foliage 0.3,0.3,0.15,0.2 --docs",
+          {"extraction_3d", "simulation", *MAPPING}, "generalization_tuning_foliage"),
     _step("footprints", "benchmarks/bench_footprints.py --docs", {"extraction_3d", "simulation", *MAPPING},
           "footprints"),
     _step("pose_tuning_sim", "benchmarks/bench_pose_noise.py --parts sim --docs",

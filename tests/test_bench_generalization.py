@@ -110,3 +110,18 @@ def test_variant_tables_compare_each_setting_with_the_configuration_without_it(b
                        "0.986 / 0.985 (2)", "1.000 / 1.000 (1)"]
     # world 1 moved by less than 0.002 everywhere: only world 2 is listed
     assert rows[2:] == [["a.b=1", "2", "proposed", "0.975 -> 0.969", "0.978 -> 0.985", "0.980 -> 0.987"]]
+
+
+def test_porous_foliage_is_checked_and_its_drives_are_cached_apart(bench, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        bench.main(["--foliage", "1,0.3,0.1,0.2", "--sim-root", str(tmp_path)])     # a porosity of 1: nothing stops
+    assert exit_.value.code == 2 and "--foliage" in capsys.readouterr().err
+    assert bench.main(["--foliage", "0.3,0.3,0.15,0.2", "--docs", "--losses", "3", "--sim-root", str(tmp_path)]) == 2
+    assert "--losses with --foliage and --docs" in capsys.readouterr().out
+    assert not any(tmp_path.iterdir())
+    foliage = (0.3, 0.3, 0.15, 0.2)
+    plain, porous = bench.drive_root(tmp_path, "tuning", 11), bench.drive_root(tmp_path, "tuning", 11, foliage)
+    assert plain.name == porous.name and plain.parent != porous.parent
+    assert bench._fingerprint(11) != bench._fingerprint(11, foliage)
+    trees = [o for o in bench._generated(11, foliage).world.objects if o.kind == "tree"]
+    assert trees and all(t.crown_porosity == 0.3 and t.crown_depth_m == 0.3 for t in trees)

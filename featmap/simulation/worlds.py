@@ -387,6 +387,20 @@ def load_world(name_or_file: str | Path) -> World:
     return world_from_dict(data, str(path))
 
 
+def with_porous_foliage(world: World, crown_porosity: float, crown_depth_m: float, hedge_porosity: float,
+                        hedge_depth_m: float) -> World:
+    """``world`` with every tree's crown and every hedge porous (see :mod:`featmap.simulation.scene`): the
+    share of rays that pass through each and the mean depth inside it at which the others return."""
+    objects = []
+    for obj in world.objects:
+        if obj.kind == "tree":
+            obj = obj.model_copy(update={"crown_porosity": crown_porosity, "crown_depth_m": crown_depth_m})
+        elif obj.kind == "hedge":
+            obj = obj.model_copy(update={"porosity": hedge_porosity, "depth_m": hedge_depth_m})
+        objects.append(obj)
+    return World.model_validate({**world.model_dump(), "objects": [o.model_dump() for o in objects]})
+
+
 def building_edges(world: World) -> list[dict]:
     """Every wall of every building: dicts with building id and index, edge index, endpoints (2,)+(2,), labels.
 

@@ -143,3 +143,20 @@ def test_a_repeated_footprint_vertex_makes_no_zero_length_wall():
     repeated = building_edges(world([[0, 0], [20, 0], [20, 0], [20, 10], [0, 10], [0, 10], [0, 0]]))
     assert len(repeated) == len(plain) == 4
     assert all(np.hypot(*(np.asarray(e["q"]) - e["p"])) > 1 for e in repeated)
+
+
+def test_with_porous_foliage_changes_the_crowns_and_hedges_only():
+    from featmap.simulation.worlds import with_porous_foliage, world_from_dict
+
+    world = world_from_dict({
+        "name": "w", "route": {"waypoints": [[0, 0], [40, 0]]},
+        "objects": [{"id": "A", "kind": "building", "height": 8, "footprint": [[0, 5], [10, 5], [10, 9], [0, 9]]},
+                    {"id": "t", "kind": "tree", "position": [5, -5]},
+                    {"id": "h", "kind": "hedge", "line": [[0, -3], [8, -3]]},
+                    {"id": "f", "kind": "fence", "line": [[0, -4], [8, -4]]}]}, "w.yaml")
+    porous = with_porous_foliage(world, 0.3, 0.4, 0.1, 0.2)
+    by_id = {o.id: o for o in porous.objects}
+    assert (by_id["t"].crown_porosity, by_id["t"].crown_depth_m) == (0.3, 0.4)
+    assert (by_id["h"].porosity, by_id["h"].depth_m) == (0.1, 0.2)
+    assert by_id["A"] == world.objects[0] and by_id["f"] == world.objects[3]
+    assert world.objects[1].crown_porosity == 0.0          # the original is left as it was
