@@ -453,13 +453,21 @@ def markdown_summary(results: list[WorldResult], methods: list[str], split: str,
 # --- main --------------------------------------------------------------------------------------------
 
 def _foliage(text: str) -> tuple[float, float, float, float]:
+    """``--foliage``'s four values, checked by the world model's own bounds (a tree's and a hedge's)."""
+    from pydantic import ValidationError
+
+    from featmap.simulation.worlds import Hedge, Tree
+
     try:
         values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) != 4 or not (0 <= values[0] < 1 and 0 <= values[2] < 1 and values[1] >= 0 and values[3] >= 0):
+        if len(values) != 4:
+            raise ValueError
+        Tree(kind="tree", position=(0, 0), crown_porosity=values[0], crown_depth_m=values[1])
+        Hedge(kind="hedge", line=[(0, 0), (1, 0)], porosity=values[2], depth_m=values[3])
+    except (ValueError, ValidationError):
         raise argparse.ArgumentTypeError(f"{text!r}: expected CROWN_POROSITY,CROWN_DEPTH_M,HEDGE_POROSITY,"
-                                         "HEDGE_DEPTH_M with porosities in [0, 1) and depths >= 0, e.g. 0.3,0.3,0.15,0.2")
+                                         "HEDGE_DEPTH_M with porosities in [0, 1) and depths >= 0, e.g. 0.3,0.3,0.15,0.2"
+                                         ) from None
     return values
 
 

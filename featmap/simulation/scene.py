@@ -34,6 +34,7 @@ SLOPE_PIECE_M = 1.0
 SLOPE_SINK_M = 0.15
 HEDGE_BOX_M = 0.7           # longest box of a hedge (its segments are cut into equal boxes up to this long)
 FOLIAGE_MAX_DEPTHS = 3.0    # a ray stopped by foliage returns from at most this many mean depths inside it
+SOLID = (0.0, 0.0)          # the (porosity, mean depth) of a mesh that is not porous foliage
 
 
 @dataclass
@@ -161,7 +162,6 @@ def _clutter_meshes(world: World, surface: GroundSurface | None = None) -> tuple
         return 0.0 if flat else float(surface.height(np.asarray(xy, float))[0])
 
     out: dict[str, list] = {"fence": [], "car": [], "pole": [], "tree": [], "hedge": []}
-    solid = (0.0, 0.0)
     foliage: dict[str, list] = {kind: [] for kind in out}
     for f in world.of_kind("fence"):
         line = np.asarray(f.line, float)
@@ -195,13 +195,13 @@ def _clutter_meshes(world: World, surface: GroundSurface | None = None) -> tuple
         crown = o3d.geometry.TriangleMesh.create_sphere(t.crown_radius, resolution=10)
         crown.translate((t.position[0], t.position[1], z0 + t.trunk_height + 0.8 * t.crown_radius))
         out["tree"] += [trunk, crown]
-        foliage["tree"] += [solid, (t.crown_porosity, t.crown_depth_m)]
+        foliage["tree"] += [SOLID, (t.crown_porosity, t.crown_depth_m)]
     for h in world.of_kind("hedge"):
         boxes = _hedge_boxes(h, surface)
         out["hedge"] += boxes
         foliage["hedge"] += [(h.porosity, h.depth_m)] * len(boxes)
     for kind, meshes in out.items():
-        foliage[kind] += [solid] * (len(meshes) - len(foliage[kind]))
+        foliage[kind] += [SOLID] * (len(meshes) - len(foliage[kind]))
     return out, foliage
 
 
@@ -241,7 +241,7 @@ def build_scene(world: World, ground_margin_m: float = 200.0, without_foliage: b
     meshes_by_kind, foliage_by_kind = _clutter_meshes(world, surface)
     foliage = {}
     for kind, meshes in meshes_by_kind.items():
-        porous = [f != (0.0, 0.0) for f in foliage_by_kind[kind]]
+        porous = [f != SOLID for f in foliage_by_kind[kind]]
         if without_foliage:
             meshes = [m for m, p in zip(meshes, porous) if not p]
         verts, tris = _merge(meshes)

@@ -52,8 +52,9 @@ from featmap.simulation.trajectory import sample_poses
 from featmap.simulation.worlds import World, _open_ring
 
 SIM_DATE = "2000_01_01"
-FOLIAGE_STREAM = 0xF011A6E     # the second key of the porous foliage's random stream: default_rng([seed, this])
 """Simulated drives use this date, so they never collide with a real KITTI drive."""
+FOLIAGE_STREAM = 0xF011A6E
+"""The second key of the porous foliage's random stream, ``default_rng([seed, FOLIAGE_STREAM])``."""
 
 
 def rotation_xyz(roll: float, pitch: float, yaw: float) -> np.ndarray:

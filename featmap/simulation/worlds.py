@@ -391,14 +391,11 @@ def with_porous_foliage(world: World, crown_porosity: float, crown_depth_m: floa
                         hedge_depth_m: float) -> World:
     """``world`` with every tree's crown and every hedge porous (see :mod:`featmap.simulation.scene`): the
     share of rays that pass through each and the mean depth inside it at which the others return."""
-    objects = []
-    for obj in world.objects:
-        if obj.kind == "tree":
-            obj = obj.model_copy(update={"crown_porosity": crown_porosity, "crown_depth_m": crown_depth_m})
-        elif obj.kind == "hedge":
-            obj = obj.model_copy(update={"porosity": hedge_porosity, "depth_m": hedge_depth_m})
-        objects.append(obj)
-    return World.model_validate({**world.model_dump(), "objects": [o.model_dump() for o in objects]})
+    update = {"tree": {"crown_porosity": crown_porosity, "crown_depth_m": crown_depth_m},
+              "hedge": {"porosity": hedge_porosity, "depth_m": hedge_depth_m}}
+    data = world.model_dump()
+    data["objects"] = [{**obj, **update.get(obj["kind"], {})} for obj in data["objects"]]
+    return World.model_validate(data)
 
 
 def building_edges(world: World) -> list[dict]:
