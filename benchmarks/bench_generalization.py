@@ -1,22 +1,23 @@
 """Generalization benchmark: per-scan extraction and fused maps on procedurally generated worlds.
 
-    .venv/bin/python benchmarks/bench_generalization.py [--split tuning|heldout|heldout2|heldout3|heldout4] [--seeds S ...]
+    .venv/bin/python benchmarks/bench_generalization.py [--split tuning|heldout|heldout2|...|heldout5] [--seeds S ...]
         [--frames a:b:c] [--workers 2] [--set key=value ...] [--cache-dir DIR] [--no-cache] [--json FILE] [--docs]
-        [--losses K] [--variant "key=value [key=value ...]" ...] [--foliage CP,CD,HP,HD]
+        [--losses K] [--variant "key=value [key=value ...]" ...] [--foliage CP,CD,HP,HD|drawn]
 
 Worlds come from :mod:`featmap.simulation.procedural` (house rows, apartment blocks, courtyards,
 side streets, far walls 50-100 m away, cars, fences, hedges, poles, trees, sloped streets with
 curbs; hdl64, vlp32, vls128 or vlp16 with 0.1-0.4 deg azimuth steps, 1-3 cm range noise and
 dropout). ``--split tuning`` (default) uses ``TUNING_SEEDS``, the worlds to develop and tune on;
 ``--split heldout`` uses ``HELDOUT_SEEDS``, ``--split heldout2`` ``SECOND_HELDOUT_SEEDS``, ``--split heldout3``
-``THIRD_HELDOUT_SEEDS`` and ``--split heldout4`` ``FOURTH_HELDOUT_SEEDS``
+``THIRD_HELDOUT_SEEDS``, ``--split heldout4`` ``FOURTH_HELDOUT_SEEDS`` and ``--split heldout5``
+``FIFTH_HELDOUT_SEEDS``
 (:mod:`featmap.simulation.splits`), which must never be used while tuning: run them only to report how
 final defaults generalise. ``--split tuning --seeds`` also takes any other seed that is not
 held out (a probe world, e.g. one chosen by the settings of a held-out world that misses). Each drive is simulated on first use into
 ``data/sim/<split>/procedural_<seed>`` with per-scan ground truth (``truth/observations.npz``).
 
-The default covers every frame of every world of the split (31 tuning or four times 10 held-out worlds of
-115-260 scans at 10 Hz: 6147, 2198, 2063, 2110 and 2155 scans). First use simulates them (10-100 s and 0.1-0.5 GB per
+The default covers every frame of every world of the split (31 tuning or five times 10 held-out worlds of
+115-260 scans at 10 Hz: 6147, 2198, 2063, 2110, 2155 and 2139 scans). First use simulates them (10-100 s and 0.1-0.5 GB per
 world), and so does any change to the generator or to the simulator's code. With an empty cache nearly
 all of the run is extraction (the speed is printed); a re-run that changes only fusion settings takes
 about a minute for the tuning split (61 s on 2026-12-03, all three methods).
@@ -24,7 +25,9 @@ about a minute for the tuning split (61 s on 2026-12-03, all three methods).
 ``--foliage 0.3,0.3,0.15,0.2`` runs the same worlds with every tree crown and hedge porous
 (:func:`featmap.simulation.worlds.with_porous_foliage`: the share of rays passing a crown, the mean depth
 inside it at which the others return, the same for hedges), simulated into
-``data/sim/<split>_foliage_<values>/`` (the generator's worlds have solid foliage).
+``data/sim/<split>_foliage_<values>/`` (the generator's worlds have solid foliage); ``--foliage drawn``
+gives each crown and hedge its own porosity and depth, drawn from the world's seed
+(:func:`featmap.simulation.worlds.with_drawn_foliage`), into ``data/sim/<split>_foliage_drawn/``.
 
 Per world and overall it prints:
 
@@ -91,7 +94,7 @@ from featmap.pipeline.extract import extract_source
 from featmap.simulation.procedural import generate
 from featmap.simulation.splits import HELDOUT_SPLITS, SPLITS, held_out_seeds, split_seeds
 from featmap.simulation.simulate import SIM_DATE, simulate_drive, simulation_fingerprint
-from featmap.simulation.worlds import with_porous_foliage
+from featmap.simulation.worlds import with_drawn_foliage, with_porous_foliage
 
 DRIVE = f"{SIM_DATE}_drive_0001"
 MAX_WORKERS = 2
@@ -103,14 +106,27 @@ CHANGED = 0.002
 
 # --- drives ------------------------------------------------------------------------------------------
 
-def _generated(seed: int, foliage: tuple[float, ...] | None = None):
-    """``seed``'s world and settings; with ``foliage`` (crown porosity, crown depth m, hedge porosity, hedge
-    depth m), every tree crown and hedge of the world made porous."""
+Foliage = tuple[float, ...] | str | None
+"""``--foliage``: None (the generator's solid foliage), four values (crown porosity, crown depth m, hedge
+porosity, hedge depth m) for every crown and hedge, or ``"drawn"`` (each its own, from the world's seed)."""
+
+
+def _generated(seed: int, foliage: Foliage = None):
+    """``seed``'s world and settings, with its tree crowns and hedges made porous as ``foliage`` says."""
     g = generate(seed)
-    return g if foliage is None else replace(g, world=with_porous_foliage(g.world, *foliage))
+    if foliage is None:
+        return g
+    if foliage == "drawn":
+        return replace(g, world=with_drawn_foliage(g.world, seed))
+    return replace(g, world=with_porous_foliage(g.world, *foliage))
 
 
-def _fingerprint(seed: int, foliage: tuple[float, ...] | None = None) -> str:
+def foliage_tag(foliage: Foliage, sep: str = ",") -> str:
+    """How ``foliage`` (not None) is named in folders (``sep="_"``), commands and labels."""
+    return foliage if isinstance(foliage, str) else sep.join(f"{v:g}" for v in foliage)
+
+
+def _fingerprint(seed: int, foliage: Foliage = None) -> str:
     """What a cached drive was made from: the world, its settings and the simulator's source."""
     g = _generated(seed, foliage)
     return simulation_fingerprint({"world": g.world.model_dump(mode="json"), "sensor": g.settings.sensor.__dict__,
@@ -118,13 +134,13 @@ def _fingerprint(seed: int, foliage: tuple[float, ...] | None = None) -> str:
                                    "seed": g.settings.seed})
 
 
-def drive_root(sim_root: Path, split: str, seed: int, foliage: tuple[float, ...] | None = None) -> Path:
+def drive_root(sim_root: Path, split: str, seed: int, foliage: Foliage = None) -> Path:
     """Where ``seed``'s drive is cached (worlds with porous foliage apart from the generator's own)."""
-    folder = split if foliage is None else f"{split}_foliage_{'_'.join(f'{v:g}' for v in foliage)}"
+    folder = split if foliage is None else f"{split}_foliage_{foliage_tag(foliage, '_')}"
     return sim_root / folder / f"procedural_{seed}"
 
 
-def is_current(sim_root: Path, split: str, seed: int, foliage: tuple[float, ...] | None = None) -> bool:
+def is_current(sim_root: Path, split: str, seed: int, foliage: Foliage = None) -> bool:
     """True when ``seed``'s drive is cached and was simulated from the world the generator makes now."""
     root = drive_root(sim_root, split, seed, foliage)
     stamp = root / "generator.json"
@@ -132,7 +148,7 @@ def is_current(sim_root: Path, split: str, seed: int, foliage: tuple[float, ...]
     return done and stamp.exists() and json.loads(stamp.read_text()).get("fingerprint") == _fingerprint(seed, foliage)
 
 
-def ensure_drive(sim_root: Path, split: str, seed: int, foliage: tuple[float, ...] | None = None) -> Path:
+def ensure_drive(sim_root: Path, split: str, seed: int, foliage: Foliage = None) -> Path:
     """The KITTI raw root of ``seed``'s drive, simulated (with per-scan truth) if missing or stale."""
     root = drive_root(sim_root, split, seed, foliage)
     if is_current(sim_root, split, seed, foliage):
@@ -452,12 +468,14 @@ def markdown_summary(results: list[WorldResult], methods: list[str], split: str,
 
 # --- main --------------------------------------------------------------------------------------------
 
-def _foliage(text: str) -> tuple[float, float, float, float]:
-    """``--foliage``'s four values, checked by the world model's own bounds (a tree's and a hedge's)."""
+def _foliage(text: str) -> tuple[float, float, float, float] | str:
+    """``--foliage``: ``drawn``, or four values checked by the world model's own bounds (a tree's and a hedge's)."""
     from pydantic import ValidationError
 
     from featmap.simulation.worlds import Hedge, Tree
 
+    if text == "drawn":
+        return text
     try:
         values = tuple(float(v) for v in text.split(","))
         if len(values) != 4:
@@ -466,7 +484,8 @@ def _foliage(text: str) -> tuple[float, float, float, float]:
         Hedge(kind="hedge", line=[(0, 0), (1, 0)], porosity=values[2], depth_m=values[3])
     except (ValueError, ValidationError):
         raise argparse.ArgumentTypeError(f"{text!r}: expected CROWN_POROSITY,CROWN_DEPTH_M,HEDGE_POROSITY,"
-                                         "HEDGE_DEPTH_M with porosities in [0, 1) and depths >= 0, e.g. 0.3,0.3,0.15,0.2"
+                                         "HEDGE_DEPTH_M with porosities in [0, 1) and depths >= 0, e.g. 0.3,0.3,0.15,0.2, "
+                                         "or drawn"
                                          ) from None
     return values
 
@@ -490,10 +509,11 @@ def main(argv: list[str] | None = None) -> int:
                              "how the drive saw it, and the K longest uncovered stretches (not on held-out splits)")
     parser.add_argument("--docs", action="store_true",
                         help="write the summary into docs/results.md (block generalization_<split>)")
-    parser.add_argument("--foliage", type=_foliage, metavar="CP,CD,HP,HD",
+    parser.add_argument("--foliage", type=_foliage, metavar="CP,CD,HP,HD|drawn",
                         help="make every tree crown and hedge porous: crown porosity, crown depth (m), hedge "
-                             "porosity, hedge depth (m), e.g. 0.3,0.3,0.15,0.2 (drives cached apart; --docs writes "
-                             "block generalization_<split>_foliage)")
+                             "porosity, hedge depth (m), e.g. 0.3,0.3,0.15,0.2 (--docs writes block "
+                             "generalization_<split>_foliage), or drawn: each its own, from the world's seed "
+                             "(block generalization_<split>_foliage_drawn); drives cached apart")
     parser.add_argument("--variant", action="append", default=[], metavar='"KEY=VALUE ..."',
                         help="also run the worlds with these settings on top of --set and compare (repeatable; "
                              "not on held-out splits, nor with --docs)")
@@ -579,7 +599,7 @@ def _run(args, console: Console) -> int:
     store = SegmentStore(None if args.no_cache else args.cache_dir)
     console.print(f"{args.split} split: {len(seeds)} world(s) (seeds {', '.join(map(str, seeds))}), frames "
                   f"{args.frames or 'all'}, extractor {extractor}, {workers} worker(s)"
-                  + (f", porous foliage {','.join(f'{v:g}' for v in args.foliage)}" if args.foliage else ""))
+                  + (f", porous foliage {foliage_tag(args.foliage)}" if args.foliage else ""))
     ctx = mp.get_context("spawn")            # Open3D and fork do not mix
 
     missing = [s for s in seeds if not is_current(args.sim_root, args.split, s, args.foliage)]
@@ -619,8 +639,11 @@ def _run(args, console: Console) -> int:
         if args.losses:
             command += f" --losses {args.losses}"
         block, label = f"generalization_{args.split}", args.split
-        if args.foliage:
-            values = ",".join(f"{v:g}" for v in args.foliage)
+        if args.foliage == "drawn":
+            command += " --foliage drawn"
+            block, label = f"{block}_foliage_drawn", f"{args.split} (every crown and hedge porous, each its own drawn)"
+        elif args.foliage:
+            values = foliage_tag(args.foliage)
             command += f" --foliage {values}"
             block, label = f"{block}_foliage", f"{args.split} (every crown and hedge porous: {values})"
         replace_block(results_md, block, f"{command} --docs`: " + markdown_summary(results, methods, label, args.frames))

@@ -125,3 +125,8 @@ def test_porous_foliage_is_checked_and_its_drives_are_cached_apart(bench, tmp_pa
     assert bench._fingerprint(11) != bench._fingerprint(11, foliage)
     trees = [o for o in bench._generated(11, foliage).world.objects if o.kind == "tree"]
     assert trees and all(t.crown_porosity == 0.3 and t.crown_depth_m == 0.3 for t in trees)
+    drawn = bench.drive_root(tmp_path, "tuning", 11, "drawn")
+    assert drawn.parent.name == "tuning_foliage_drawn" and drawn.parent != porous.parent
+    assert bench._fingerprint(11, "drawn") not in (bench._fingerprint(11), bench._fingerprint(11, foliage))
+    trees = [o for o in bench._generated(11, "drawn").world.objects if o.kind == "tree"]
+    assert len(trees) > 1 and len({t.crown_porosity for t in trees}) > len(trees) // 2   # each its own

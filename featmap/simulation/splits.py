@@ -61,8 +61,17 @@ FOURTH_HELDOUT_SEEDS: tuple[int, ...] = (7131, 7132, 7133, 7134, 7135, 7136, 713
 :data:`THIRD_HELDOUT_SEEDS`), fixed before anything ran on them, and first run with extractor version 14.
 The same rules as :data:`HELDOUT_SEEDS` (``--split heldout4``)."""
 
+FIFTH_HELDOUT_SEEDS: tuple[int, ...] = (7141, 7142, 7143, 7144, 7145, 7146, 7147, 7148, 7149, 7150)
+"""The fifth held-out worlds, drawn in order on 2026-12-05 (the next ten seeds after
+:data:`FOURTH_HELDOUT_SEEDS`), fixed before anything ran on them, and first run with extractor version 14,
+as the generator makes them and with porous foliage drawn per crown and hedge (``--split heldout5
+--foliage drawn``, :func:`featmap.simulation.worlds.with_drawn_foliage`: the real scans' remaining clutter
+is foliage, which the generator's solid crowns and hedges never show). The same rules as
+:data:`HELDOUT_SEEDS`."""
+
 HELDOUT_SPLITS: dict[str, tuple[int, ...]] = {"heldout": HELDOUT_SEEDS, "heldout2": SECOND_HELDOUT_SEEDS,
-                                               "heldout3": THIRD_HELDOUT_SEEDS, "heldout4": FOURTH_HELDOUT_SEEDS}
+                                               "heldout3": THIRD_HELDOUT_SEEDS, "heldout4": FOURTH_HELDOUT_SEEDS,
+                                               "heldout5": FIFTH_HELDOUT_SEEDS}
 """The held-out splits by name."""
 
 SPLITS: dict[str, tuple[int, ...]] = {"tuning": TUNING_SEEDS, **HELDOUT_SPLITS}

@@ -160,3 +160,26 @@ def test_with_porous_foliage_changes_the_crowns_and_hedges_only():
     assert (by_id["h"].porosity, by_id["h"].depth_m) == (0.1, 0.2)
     assert by_id["A"] == world.objects[0] and by_id["f"] == world.objects[3]
     assert world.objects[1].crown_porosity == 0.0          # the original is left as it was
+
+
+def test_with_drawn_foliage_draws_each_crown_and_hedge_in_its_range_and_repeats_per_seed():
+    from featmap.simulation.worlds import DRAWN_FOLIAGE, with_drawn_foliage, world_from_dict
+
+    world = world_from_dict({
+        "name": "w", "route": {"waypoints": [[0, 0], [40, 0]]},
+        "objects": [{"id": "A", "kind": "building", "height": 8, "footprint": [[0, 5], [10, 5], [10, 9], [0, 9]]},
+                    *({"id": f"t{k}", "kind": "tree", "position": [4 * k, -5]} for k in range(20)),
+                    {"id": "h", "kind": "hedge", "line": [[0, -3], [8, -3]]},
+                    {"id": "f", "kind": "fence", "line": [[0, -4], [8, -4]]}]}, "w.yaml")
+    drawn = with_drawn_foliage(world, 7)
+    assert drawn == with_drawn_foliage(world, 7) and drawn != with_drawn_foliage(world, 8)
+    trees = [o for o in drawn.objects if o.kind == "tree"]
+    for key, (low, high) in DRAWN_FOLIAGE["tree"].items():
+        values = [getattr(t, key) for t in trees]
+        assert all(low <= v <= high for v in values)
+        assert len(set(values)) > len(trees) // 2            # each crown its own
+    hedge = next(o for o in drawn.objects if o.kind == "hedge")
+    assert all(low <= getattr(hedge, key) <= high for key, (low, high) in DRAWN_FOLIAGE["hedge"].items())
+    assert hedge.porosity > 0 or hedge.depth_m > 0
+    assert drawn.objects[0] == world.objects[0] and drawn.objects[-1] == world.objects[-1]   # building, fence
+    assert world.objects[1].crown_porosity == 0.0            # the original is left as it was
