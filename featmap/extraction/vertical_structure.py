@@ -92,7 +92,10 @@ wall's points away. One pass, no randomness:
    when at least half of those floating columns are low and thin (top below ``floating_min_top_m``, height
    span below ``floating_min_span_m``): a tree's trunk is one column reaching the ground, and the underside
    of its crown curving towards the sensor beside it is seen in slivers 2-4 m up; it reaches down and is
-   as tall as a van, so the other tests let it through. Where the sensor's beams lie more than
+   as tall as a van, so the other tests let it through. With ``trunk_max_share`` (measured, not adopted:
+   off by default) the same shape seen finer: a piece shorter than ``solid_length_m`` whose cells reach
+   down over less than that share of its length, beside low thin ones (a trunk often straddles two of a
+   1.5 m piece's three columns). Where the sensor's beams lie more than
    ``min_span_m`` apart in height (a 16-beam sensor beyond 23 m), a wall may be cut by a single beam and
    span nothing: a piece at least ``one_ring_min_length_m`` long whose top is at least ``tall_m`` up needs
    no span there (adopted 2026-12-05 as version 14; measured in ``docs/results.md``). The spread of the scan's long walls
@@ -199,6 +202,7 @@ class VerticalStructureConfig(Section):
     short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do")
     floating_min_top_m: float = Field(4.0, ge=0, description="a piece shorter than long_m that floats in at least half of its 0.5 m columns (their bottom neither within short_max_bottom_m of the ground nor hidden by something in front) is no wall when at least half of those floating columns are low and thin: their top below this height above the ground ... (a tree's trunk beside the underside of its crown; 0 = off)")
     floating_min_span_m: float = Field(1.0, ge=0, description="... and their height span below this (a crown's underside is seen in thin slivers; a wall's upper storey seen over a lower roof stands higher)")
+    trunk_max_share: float = Field(0.0, ge=0, le=1, description="a piece shorter than solid_length_m that reaches down (its cells' bottom within short_max_bottom_m of the ground, or hidden in front) over less than this share of its length, and at least half of whose other cells are low and thin (floating_min_top_m, floating_min_span_m), is a tree's trunk beside the underside of its crown (0 = off; 0.5 measured in docs/results.md, not adopted yet)")
     one_ring_min_length_m: float = Field(6.0, ge=0, description="a piece at least this long, at a range where the sensor's beams lie more than min_span_m apart in height, whose top is at least tall_m above the ground, needs no height span: a far wall cut by a single beam (0 = off)")
     extend_hidden_m: float = Field(3.0, ge=0, description="a wall goes on past its ends, up to this far along its line, over its low returns whose column is hidden above by something in front (a bush before a garden wall; 0 = off)")
 
@@ -1186,6 +1190,7 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     cells_per_piece = np.bincount(piece, minlength=n)
     length = np.hypot(*(b - a).T)
     floating_short = _floating_short_pieces(cells, members, piece, col, col_piece, col_top, spacing, n, config)
+    trunk = _trunk_pieces(cells, members, piece, along, spacing, n, config)
 
     def in_half_of_its_cells(flag: np.ndarray | None) -> np.ndarray:
         """(n,) the pieces with ``flag`` (per cell, or None: off) in at least half of their cells."""
@@ -1219,6 +1224,7 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     ok &= (reaches_top | cut_above | (top >= config.tall_m)
            | ((length >= config.long_m) & (top >= config.long_min_top_m)))
     ok &= ~(floating_short & (length < config.long_m))
+    ok &= ~(trunk & (length < config.solid_length_m))
     out[members] = np.where(ok[piece], piece, -1)
     return out
 
@@ -1251,6 +1257,41 @@ def _floating_short_pieces(cells: Cells, members: np.ndarray, piece: np.ndarray,
     n_settled = np.bincount(col_piece, settled, n)
     return (n_settled <= 0.5 * columns) & (np.bincount(col_piece, low_thin, n) >= 0.5 * (columns - n_settled)) \
         & (n_settled < columns)
+
+
+def _trunk_pieces(cells: Cells, members: np.ndarray, piece: np.ndarray, along: np.ndarray, spacing: np.ndarray,
+                  n: int, config: VerticalStructureConfig) -> np.ndarray:
+    """(n,) pieces that reach down over a narrow stretch only, beside low, thin cells (``trunk_max_share``).
+
+    ``members`` (K,): the pieces' cells, ``piece`` (K,) their piece in ``[0, n)``, ``along`` (K,) their
+    position along it (metres), ``spacing`` (K,) one beam spacing at their range. A cell is settled when
+    its lowest return, less that spacing, is within ``short_max_bottom_m`` of the ground or its bottom is
+    hidden in front (``Cells.hidden_below``), else it floats, and a floating cell is low and thin as in
+    :func:`_floating_short_pieces`. A piece some but not all of whose cells are settled is flagged when its
+    settled cells span less than ``trunk_max_share`` of the span of all its cells and at least half of its
+    floating cells are low and thin: a tree's trunk, 0.3-0.5 m wide, reaches the ground, and the underside
+    of its crown beside it is seen in thin slivers 2-4 m up. In 0.5 m columns (``floating_min_top_m``) a
+    trunk often straddles two of a 1.5 m piece's three columns, so that test sees it settled in most of
+    them. A wall reaches down, or is hidden below, along all of its length.
+    """
+    if config.trunk_max_share <= 0:
+        return np.zeros(n, bool)
+    settled = cells.bottom[members] - spacing <= config.short_max_bottom_m
+    if cells.hidden_below is not None:
+        settled |= cells.hidden_below[members]
+    top, bottom = cells.top[members], cells.bottom[members]
+    low_thin = ~settled & (top < config.floating_min_top_m) & (top - bottom < config.floating_min_span_m)
+    lo, hi = np.full(n, np.inf), np.full(n, -np.inf)
+    np.minimum.at(lo, piece, along)
+    np.maximum.at(hi, piece, along)
+    settled_lo, settled_hi = np.full(n, np.inf), np.full(n, -np.inf)
+    np.minimum.at(settled_lo, piece[settled], along[settled])
+    np.maximum.at(settled_hi, piece[settled], along[settled])
+    cells_per_piece = np.bincount(piece, minlength=n)
+    n_settled = np.bincount(piece, settled, n)
+    return (n_settled > 0) & (n_settled < cells_per_piece) \
+        & (settled_hi - settled_lo < config.trunk_max_share * (hi - lo)) \
+        & (np.bincount(piece, low_thin, n) >= 0.5 * (cells_per_piece - n_settled))
 
 
 @dataclass(frozen=True)
