@@ -778,7 +778,7 @@ def test_a_trunk_beside_the_underside_of_its_crown_is_no_wall_but_an_upper_store
 
 
 def test_a_trunk_straddling_two_of_three_columns_is_no_wall_with_trunk_max_share_and_short_walls_stay():
-    """Street trees 7 m to each side, 12-60 m ahead (2.8 m trunks, 1.8 m crowns), seen by a vls128 at 0.4 deg
+    """Street trees 7 m to each side, 12-52 m ahead (2.8 m trunks, 1.8 m crowns), seen by a vls128 at 0.4 deg
     with 2.6 cm noise: by default three 1-1.7 m pieces of a trunk and the underside of its crown are walls
     (the trunk reaches down in two of their three 0.5 m columns, so ``floating_min_top_m`` keeps them); with
     ``trunk_max_share`` 0.5 (their cells reach down over less than half of their length, beside low thin
