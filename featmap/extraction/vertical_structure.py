@@ -1229,14 +1229,23 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     return out
 
 
+def _settled_cells(cells: Cells, members: np.ndarray, spacing: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
+    """(K,) the cells ``members`` (K,) that reach down: their lowest return, less ``spacing`` (K,), one beam
+    spacing at their range, within ``short_max_bottom_m`` of the ground, or their bottom hidden in front."""
+    settled = cells.bottom[members] - spacing <= config.short_max_bottom_m
+    if cells.hidden_below is not None:
+        settled |= cells.hidden_below[members]
+    return settled
+
+
 def _floating_short_pieces(cells: Cells, members: np.ndarray, piece: np.ndarray, col: np.ndarray,
                            col_piece: np.ndarray, col_top: np.ndarray, spacing: np.ndarray, n: int,
                            config: VerticalStructureConfig) -> np.ndarray:
     """(n,) pieces that float over most of their length in low, thin columns (``floating_min_top_m``).
 
-    A column (``COLUMN_M`` along the piece) is settled when its lowest return, less one beam spacing at its
-    range, is within ``short_max_bottom_m`` of the ground, or when its bottom is hidden by something in
-    front (``Cells.hidden_below``); else it floats, and a floating column is low and thin when its top is
+    A column (``COLUMN_M`` along the piece) is settled when one of its cells is (:func:`_settled_cells`: its
+    lowest return, less one beam spacing at its range, within ``short_max_bottom_m`` of the ground, or its
+    bottom hidden by something in front, ``Cells.hidden_below``); else it floats, and a floating column is low and thin when its top is
     below ``floating_min_top_m`` and its height span below ``floating_min_span_m``. A piece settled in at
     most half of its columns, at least half of whose floating columns are low and thin, is flagged: a
     tree's trunk is one settled column, and the underside of its crown curving towards the sensor beside
@@ -1247,11 +1256,8 @@ def _floating_short_pieces(cells: Cells, members: np.ndarray, piece: np.ndarray,
     n_col = len(col_piece)
     col_bottom = np.full(n_col, np.inf)
     np.minimum.at(col_bottom, col, cells.bottom[members])
-    col_low = np.full(n_col, np.inf)
-    np.minimum.at(col_low, col, cells.bottom[members] - spacing)
-    settled = col_low <= config.short_max_bottom_m
-    if cells.hidden_below is not None:
-        np.logical_or.at(settled, col, cells.hidden_below[members])
+    settled = np.zeros(n_col, bool)
+    np.logical_or.at(settled, col, _settled_cells(cells, members, spacing, config))
     low_thin = ~settled & (col_top < config.floating_min_top_m) & (col_top - col_bottom < config.floating_min_span_m)
     columns = np.bincount(col_piece, minlength=n)
     n_settled = np.bincount(col_piece, settled, n)
@@ -1276,9 +1282,7 @@ def _trunk_pieces(cells: Cells, members: np.ndarray, piece: np.ndarray, along: n
     """
     if config.trunk_max_share <= 0:
         return np.zeros(n, bool)
-    settled = cells.bottom[members] - spacing <= config.short_max_bottom_m
-    if cells.hidden_below is not None:
-        settled |= cells.hidden_below[members]
+    settled = _settled_cells(cells, members, spacing, config)
     top, bottom = cells.top[members], cells.bottom[members]
     low_thin = ~settled & (top < config.floating_min_top_m) & (top - bottom < config.floating_min_span_m)
     lo, hi = np.full(n, np.inf), np.full(n, -np.inf)
