@@ -92,10 +92,10 @@ wall's points away. One pass, no randomness:
    when at least half of those floating columns are low and thin (top below ``floating_min_top_m``, height
    span below ``floating_min_span_m``): a tree's trunk is one column reaching the ground, and the underside
    of its crown curving towards the sensor beside it is seen in slivers 2-4 m up; it reaches down and is
-   as tall as a van, so the other tests let it through. With ``trunk_max_share`` (measured, not adopted:
-   off by default) the same shape seen finer: a piece shorter than ``solid_length_m`` whose cells reach
-   down over less than that share of its length, beside low thin ones (a trunk often straddles two of a
-   1.5 m piece's three columns). Where the sensor's beams lie more than
+   as tall as a van, so the other tests let it through. With ``trunk_max_share`` (adopted 2026-12-05 as
+   version 15; measured in ``docs/results.md``) the same shape seen finer: a piece shorter than
+   ``solid_length_m`` whose cells reach down over less than that share of its length, beside low thin ones
+   (a trunk often straddles two of a 1.5 m piece's three columns). Where the sensor's beams lie more than
    ``min_span_m`` apart in height (a 16-beam sensor beyond 23 m), a wall may be cut by a single beam and
    span nothing: a piece at least ``one_ring_min_length_m`` long whose top is at least ``tall_m`` up needs
    no span there (adopted 2026-12-05 as version 14; measured in ``docs/results.md``). The spread of the scan's long walls
@@ -202,7 +202,7 @@ class VerticalStructureConfig(Section):
     short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do")
     floating_min_top_m: float = Field(4.0, ge=0, description="a piece shorter than long_m that floats in at least half of its 0.5 m columns (their bottom neither within short_max_bottom_m of the ground nor hidden by something in front) is no wall when at least half of those floating columns are low and thin: their top below this height above the ground ... (a tree's trunk beside the underside of its crown; 0 = off)")
     floating_min_span_m: float = Field(1.0, ge=0, description="... and their height span below this (a crown's underside is seen in thin slivers; a wall's upper storey seen over a lower roof stands higher)")
-    trunk_max_share: float = Field(0.0, ge=0, le=1, description="a piece shorter than solid_length_m that reaches down (its cells' bottom within short_max_bottom_m of the ground, or hidden in front) over less than this share of its length, and at least half of whose other cells are low and thin (floating_min_top_m, floating_min_span_m), is a tree's trunk beside the underside of its crown (0 = off, and so is floating_min_top_m 0; 0.5 measured in docs/results.md, not adopted yet)")
+    trunk_max_share: float = Field(0.5, ge=0, le=1, description="a piece shorter than solid_length_m that reaches down (its cells' bottom within short_max_bottom_m of the ground, or hidden in front) over less than this share of its length, and at least half of whose other cells are low and thin (floating_min_top_m, floating_min_span_m), is a tree's trunk beside the underside of its crown (0 = off, and so is floating_min_top_m 0; measured in docs/results.md)")
     one_ring_min_length_m: float = Field(6.0, ge=0, description="a piece at least this long, at a range where the sensor's beams lie more than min_span_m apart in height, whose top is at least tall_m above the ground, needs no height span: a far wall cut by a single beam (0 = off)")
     extend_hidden_m: float = Field(3.0, ge=0, description="a wall goes on past its ends, up to this far along its line, over its low returns whose column is hidden above by something in front (a bush before a garden wall; 0 = off)")
 
@@ -2053,4 +2053,4 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
 
 
 EXTRACTOR = Extractor(name="vertical_structure", dimension=3, config_type=VerticalStructureConfig,
-                      extract=extract_vertical_structure, version=14)
+                      extract=extract_vertical_structure, version=15)

@@ -67,11 +67,19 @@ FIFTH_HELDOUT_SEEDS: tuple[int, ...] = (7141, 7142, 7143, 7144, 7145, 7146, 7147
 as the generator makes them and with porous foliage drawn per crown and hedge (``--split heldout5
 --foliage drawn``, :func:`featmap.simulation.worlds.with_drawn_foliage`: the real scans' remaining clutter
 is foliage, which the generator's solid crowns and hedges never show). The same rules as
-:data:`HELDOUT_SEEDS`."""
+:data:`HELDOUT_SEEDS`. Extractor version 15 (``trunk_max_share``) was chosen on the tuning worlds after
+these figures (a precision miss on 7142 with drawn foliage) were seen: :data:`SIXTH_HELDOUT_SEEDS` is the
+unspent check."""
+
+SIXTH_HELDOUT_SEEDS: tuple[int, ...] = (7151, 7152, 7153, 7154, 7155, 7156, 7157, 7158, 7159, 7160)
+"""The sixth held-out worlds, drawn in order on 2026-12-05 (the next ten seeds after
+:data:`FIFTH_HELDOUT_SEEDS`), fixed before anything ran on them, and first run with extractor version 15,
+as the generator makes them and with porous foliage drawn per crown and hedge (``--split heldout6
+[--foliage drawn]``). The same rules as :data:`HELDOUT_SEEDS`."""
 
 HELDOUT_SPLITS: dict[str, tuple[int, ...]] = {"heldout": HELDOUT_SEEDS, "heldout2": SECOND_HELDOUT_SEEDS,
                                                "heldout3": THIRD_HELDOUT_SEEDS, "heldout4": FOURTH_HELDOUT_SEEDS,
-                                               "heldout5": FIFTH_HELDOUT_SEEDS}
+                                               "heldout5": FIFTH_HELDOUT_SEEDS, "heldout6": SIXTH_HELDOUT_SEEDS}
 """The held-out splits by name."""
 
 SPLITS: dict[str, tuple[int, ...]] = {"tuning": TUNING_SEEDS, **HELDOUT_SPLITS}

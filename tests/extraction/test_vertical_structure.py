@@ -777,27 +777,28 @@ def test_a_trunk_beside_the_underside_of_its_crown_is_no_wall_but_an_upper_store
     assert on_line(result.segments[0], [20, -6], [20, 6], 0.05)
 
 
-def test_a_trunk_straddling_two_of_three_columns_is_no_wall_with_trunk_max_share_and_short_walls_stay():
+def test_a_trunk_straddling_two_of_three_columns_is_no_wall_and_short_walls_stay():
     """Street trees 7 m to each side, 12-52 m ahead (2.8 m trunks, 1.8 m crowns), seen by a vls128 at 0.4 deg
-    with 2.6 cm noise: by default three 1-1.7 m pieces of a trunk and the underside of its crown are walls
-    (the trunk reaches down in two of their three 0.5 m columns, so ``floating_min_top_m`` keeps them); with
-    ``trunk_max_share`` 0.5 (their cells reach down over less than half of their length, beside low thin
-    slivers) there are none. A 2 m house front and the 2 m side of a building, which reach down along all
-    of their length, are the same segments with the setting as without it."""
+    with 2.6 cm noise: without ``trunk_max_share`` (0) three 1-1.7 m pieces of a trunk and the underside of
+    its crown are walls (the trunk reaches down in two of their three 0.5 m columns, so
+    ``floating_min_top_m`` keeps them); with the default 0.5 (their cells reach down over less than half of
+    their length, beside low thin slivers) there are none. A 2 m house front and the 2 m side of a building,
+    which reach down along all of their length, are the same segments with the setting as without it."""
+    assert VerticalStructureConfig().trunk_max_share == 0.5
     trees = [{"kind": "tree", "position": [float(x), side * 7.0], "trunk_height": 2.8, "crown_radius": 1.8}
              for x in range(12, 60, 8) for side in (1, -1)]
     scan = cast_scan(trees, sensor="vls128", azimuth_step=0.4, noise=0.026)
-    by_default = extract_vertical_structure(scan)
-    assert len(by_default) == 3
+    off = extract_vertical_structure(scan, VerticalStructureConfig(trunk_max_share=0.0))
+    assert len(off) == 3
     assert all(1.0 < np.hypot(*(s[2:] - s[:2])) < 1.8 and 5.5 < min(abs(s[1]), abs(s[3])) and max(abs(s[1]), abs(s[3])) < 8.5
-               for s in by_default.segments)                               # at the trees
-    assert len(extract_vertical_structure(scan, VerticalStructureConfig(trunk_max_share=0.5))) == 0
+               for s in off.segments)                                      # at the trees
+    assert len(extract_vertical_structure(scan)) == 0
 
     walls = [building(20, -1.0, 24, 1.0, 3.0), building(30, 6, 34, 8, 8.0)]
     for sensor, step in (("hdl64", 0.4), ("vls128", 0.2)):
         scan = cast_scan(walls, sensor=sensor, azimuth_step=step)
-        plain = extract_vertical_structure(scan)
-        ruled = extract_vertical_structure(scan, VerticalStructureConfig(trunk_max_share=0.5))
+        plain = extract_vertical_structure(scan, VerticalStructureConfig(trunk_max_share=0.0))
+        ruled = extract_vertical_structure(scan)
         assert any(on_line(s, [20, -1], [20, 1], 0.05) for s in ruled.segments)
         assert any(on_line(s, [30, 6], [30, 8], 0.05) for s in ruled.segments)
         assert ruled.segments == pytest.approx(plain.segments)
