@@ -35,6 +35,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from featmap.simulation.splits import HELDOUT_SPLITS
+
 ROOT = Path(__file__).resolve().parents[1]
 STATE_DIR = ROOT / "data" / "refresh_figures"
 AREAS = ("extraction_3d", "extraction_2d", "fusion", "refinement", "evaluation", "simulation", "speed")
@@ -67,6 +69,10 @@ def _step(name, args, areas, blocks, shared=False, figures="") -> Step:
     return Step(name, tuple(args.split()), frozenset(areas), tuple(blocks.split()), shared, figures)
 
 
+HELDOUT_SPLIT_NAMES = tuple(HELDOUT_SPLITS)
+"""Every held-out split has a generalization step and (but the first, whose step also runs its CARMEN log)
+a pose step."""
+
 STEPS = (
     _step("real_scans", "scripts/real_scan_figures.py", {"extraction_3d", "speed"}, "real_scans",
           shared=True, figures="docs/figures/real_scans/"),
@@ -75,18 +81,8 @@ STEPS = (
           figures="docs/figures/"),
     _step("generalization_tuning", "benchmarks/bench_generalization.py --split tuning --losses 10 --docs",
           {"extraction_3d", "simulation", *MAPPING}, "generalization_tuning generalization_losses"),
-    _step("generalization_heldout", "benchmarks/bench_generalization.py --split heldout --docs",
-          {"extraction_3d", "simulation", *MAPPING}, "generalization_heldout"),
-    _step("generalization_heldout2", "benchmarks/bench_generalization.py --split heldout2 --docs",
-          {"extraction_3d", "simulation", *MAPPING}, "generalization_heldout2"),
-    _step("generalization_heldout3", "benchmarks/bench_generalization.py --split heldout3 --docs",
-          {"extraction_3d", "simulation", *MAPPING}, "generalization_heldout3"),
-    _step("generalization_heldout4", "benchmarks/bench_generalization.py --split heldout4 --docs",
-          {"extraction_3d", "simulation", *MAPPING}, "generalization_heldout4"),
-    _step("generalization_heldout5", "benchmarks/bench_generalization.py --split heldout5 --docs",
-          {"extraction_3d", "simulation", *MAPPING}, "generalization_heldout5"),
-    _step("generalization_heldout6", "benchmarks/bench_generalization.py --split heldout6 --docs",
-          {"extraction_3d", "simulation", *MAPPING}, "generalization_heldout6"),
+    *(_step(f"generalization_{split}", f"benchmarks/bench_generalization.py --split {split} --docs",
+            {"extraction_3d", "simulation", *MAPPING}, f"generalization_{split}") for split in HELDOUT_SPLIT_NAMES),
     _step("generalization_tuning_foliage", "benchmarks/bench_generalization.py --foliage 0.3,0.3,0.15,0.2 --docs",
           {"extraction_3d", "simulation", *MAPPING}, "generalization_tuning_foliage"),
     _step("generalization_tuning_foliage_drawn", "benchmarks/bench_generalization.py --foliage drawn --docs",
@@ -106,16 +102,9 @@ STEPS = (
     _step("pose_heldout", "benchmarks/bench_pose_noise.py --parts sim carmen --split heldout --docs",
           {"extraction_3d", "extraction_2d", "simulation", *MAPPING},
           "pose_heldout_sim_1 pose_heldout_sim_2 pose_heldout_carmen_1", shared=True),
-    _step("pose_heldout2", "benchmarks/bench_pose_noise.py --parts sim --split heldout2 --methods proposed --docs",
-          {"extraction_3d", "simulation", *MAPPING}, "pose_heldout2_sim_1 pose_heldout2_sim_2"),
-    _step("pose_heldout3", "benchmarks/bench_pose_noise.py --parts sim --split heldout3 --methods proposed --docs",
-          {"extraction_3d", "simulation", *MAPPING}, "pose_heldout3_sim_1 pose_heldout3_sim_2"),
-    _step("pose_heldout4", "benchmarks/bench_pose_noise.py --parts sim --split heldout4 --methods proposed --docs",
-          {"extraction_3d", "simulation", *MAPPING}, "pose_heldout4_sim_1 pose_heldout4_sim_2"),
-    _step("pose_heldout5", "benchmarks/bench_pose_noise.py --parts sim --split heldout5 --methods proposed --docs",
-          {"extraction_3d", "simulation", *MAPPING}, "pose_heldout5_sim_1 pose_heldout5_sim_2"),
-    _step("pose_heldout6", "benchmarks/bench_pose_noise.py --parts sim --split heldout6 --methods proposed --docs",
-          {"extraction_3d", "simulation", *MAPPING}, "pose_heldout6_sim_1 pose_heldout6_sim_2"),
+    *(_step(f"pose_{split}", f"benchmarks/bench_pose_noise.py --parts sim --split {split} --methods proposed --docs",
+            {"extraction_3d", "simulation", *MAPPING}, f"pose_{split}_sim_1 pose_{split}_sim_2")
+      for split in HELDOUT_SPLIT_NAMES[1:]),
     _step("pose_timing", "benchmarks/bench_pose_noise.py --parts timing --docs", {"extraction_3d", "speed", *MAPPING},
           "pose_tuning_timing_1"),
     _step("online", "benchmarks/bench_online.py --docs", {"extraction_3d", "simulation", "speed", *MAPPING},
