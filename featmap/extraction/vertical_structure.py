@@ -37,7 +37,9 @@ wall's points away. One pass, no randomness:
    or within ``link_azimuth_steps`` of the scan's azimuth steps and ``link_radial_m`` as seen from the
    sensor (an ellipse in azimuth and range), which reaches the sparse samples of far walls; or, for
    two columns of returns one azimuth step apart outside that ellipse, ranges as on a wall seen up to
-   ``link_grazing_deg`` from head-on: far walls along the street, whose columns lie metres apart),
+   ``link_grazing_deg`` from head-on: far walls along the street, whose columns lie metres apart; with
+   ``link_column_stack_m``, measured and not adopted, a cell counts as a column together with the cells
+   right above and below it in its azimuth step),
    for its dominant direction; two cells are
    linked when both have a line through them, the lines agree within ``link_angle_deg`` and each
    cell lies within ``line_tolerance_m`` of the other's line. Connected cells form a line piece, so
@@ -156,7 +158,8 @@ class VerticalStructureConfig(Section):
     link_radial_m: float = Field(2.0, gt=0, description="... that are this close in range (far walls, walls seen at grazing incidence) ...")
     link_grazing_deg: float = Field(87.0, ge=0, lt=90, description="... and so are two columns one azimuth step apart whose ranges differ as on a wall seen up to this far from head-on (far walls along the street; 0 = off) ...")
     link_grazing_max_m: float = Field(8.0, ge=0, description="... when their ranges differ by at most this (two buildings in line far away, seen one azimuth step apart, are not one wall; 0 = any) ...")
-    link_column_m: float = Field(1.0, ge=0, description="... a column being a cell whose returns stand this high (a wall's; a tree crown's returns at several depths do not)")
+    link_column_m: float = Field(1.0, ge=0, description="... a column being a cell whose returns stand this high (a wall's; a tree crown's returns at several depths do not) ...")
+    link_column_stack_m: float = Field(0.0, ge=0, description="... together with the cells right above or below it in the same azimuth step whose ranges differ by at most this (a tilted sensor's column on a far wall seen at grazing incidence is a slanted streak across several cells, none a metre high; 0 = each cell alone; measured in docs/results.md, not adopted)")
     link_angle_deg: float = Field(10.0, gt=0, le=90, description="linked cells' line directions differ by at most this")
     line_tolerance_m: float = Field(0.08, gt=0, description="a linked cell lies this close to its neighbour's line")
     min_support: int = Field(2, ge=1, description="a cell has a line through it when this many neighbours lie on it")
@@ -200,6 +203,7 @@ class VerticalStructureConfig(Section):
     cut_above_counts_as_tall: bool = Field(True, description="a piece whose top is hidden just above by something in front (in at least half of its cells, the nearest return up to 2 beam spacings above the highest one, in its direction, lies 0.5 m nearer: a wall seen under a tree crown or behind a nearer roof) passes the height test as if it reached the top beam (its top is not seen; a car or hedge under a crown's base is rarely cut exactly at its top)")
     cut_above_max_ratio: float = Field(0.8, gt=0, le=1, description="... the return cutting its top lies at most this share of the piece's range away (a crown or roof well in front, not the near end of the same van seen obliquely)")
     short_rms_factor: float = Field(2.0, gt=0, description="... and spreads at most this many times as much as the scan's long walls do")
+    typical_spread_skips_sparse: bool = Field(False, description="the long walls whose spread sets these bars (solid_rms_factor, short_rms_factor) leave out those whose returns leave gaps longer than max_gap_m (far walls at grazing incidence, sampled in columns metres apart: their range noise lies along them, so they are thinner than the sensor's noise; measured in docs/results.md, not adopted)")
     floating_min_top_m: float = Field(4.0, ge=0, description="a piece shorter than long_m that floats in at least half of its 0.5 m columns (their bottom neither within short_max_bottom_m of the ground nor hidden by something in front) is no wall when at least half of those floating columns are low and thin: their top below this height above the ground ... (a tree's trunk beside the underside of its crown; 0 = off)")
     floating_min_span_m: float = Field(1.0, ge=0, description="... and their height span below this (a crown's underside is seen in thin slivers; a wall's upper storey seen over a lower roof stands higher)")
     trunk_max_share: float = Field(0.5, ge=0, le=1, description="a piece shorter than solid_length_m that reaches down (its cells' bottom within short_max_bottom_m of the ground, or hidden in front) over less than this share of its length, and at least half of whose other cells are low and thin (floating_min_top_m, floating_min_span_m), is a tree's trunk beside the underside of its crown (0 = off, and so is floating_min_top_m 0; measured in docs/results.md)")
@@ -569,6 +573,33 @@ def _sensor_view(points: np.ndarray, config: VerticalStructureConfig) -> np.ndar
     rng = np.hypot(points[:, 0], points[:, 1])
     unit = points / np.maximum(rng, 1e-9)[:, None] / np.deg2rad(config.link_azimuth_deg)
     return np.column_stack([unit, rng / config.link_radial_m])
+
+
+def column_cells(centroid: np.ndarray, top: np.ndarray, bottom: np.ndarray, config: VerticalStructureConfig
+                 ) -> np.ndarray:
+    """(C,) True for the cells ((C, 2) ``centroid`` in the sensor's x-y plane, (C,) ``top`` and ``bottom``
+    above the local ground) that stand as a column of returns: ``link_column_m`` high, alone or (with
+    ``link_column_stack_m``) together with the cells in the same azimuth step (within a quarter of it)
+    whose ranges differ from its by at most ``link_column_stack_m``: a tilted sensor cuts a far wall seen at
+    grazing incidence in slanted streaks that cross several cells, none of them a metre high."""
+    tall = top - bottom >= config.link_column_m
+    if config.link_column_stack_m <= 0 or config.link_azimuth_steps <= 0 or len(tall) < 2:
+        return tall
+    from scipy.spatial import cKDTree
+
+    step = np.deg2rad(config.link_azimuth_deg / config.link_azimuth_steps)
+    rng = np.hypot(centroid[:, 0], centroid[:, 1])
+    view = np.column_stack([centroid / np.maximum(rng, 1e-9)[:, None] / (0.25 * step),
+                            rng / config.link_column_stack_m])
+    pairs = cKDTree(view).query_pairs(1.0, output_type="ndarray")
+    if len(pairs) == 0:
+        return tall
+    i = np.concatenate([pairs[:, 0], pairs[:, 1]])
+    j = np.concatenate([pairs[:, 1], pairs[:, 0]])
+    stack_top, stack_bottom = top.copy(), bottom.copy()      # over each cell and its direct neighbours only
+    np.maximum.at(stack_top, i, top[j])
+    np.minimum.at(stack_bottom, i, bottom[j])
+    return stack_top - stack_bottom >= config.link_column_m
 
 
 def _grazing_pairs(points: np.ndarray, columns: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
@@ -1697,6 +1728,7 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
     wall &= along_ray <= np.sin(np.deg2rad(config.max_incidence_deg))
     if azimuth_step_deg is None:
         azimuth_step_deg = _configured_step_deg(config)
+    sparse = np.zeros(len(wall), bool)
     if azimuth_step_deg:
         two_columns = _few_columns(m.a, m.b, azimuth_step_deg, config)
         wall &= ~(two_columns & (m.max_gap > config.max_gap_m))
@@ -1720,6 +1752,8 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
     # them, else all long walls): where most long walls are far walls seen obliquely, theirs would put it
     # below the spread of a near wall seen head-on. Short pieces keep all long walls' median (crown facets).
     typical_of = wall & solid if m.column_chain is None else wall & solid & ~m.column_chain
+    if config.typical_spread_skips_sparse:
+        typical_of &= ~sparse
     cos_incidence = np.sqrt(np.maximum(1.0 - along_ray ** 2, 0.0))
     noise_of = typical_of & (cos_incidence >= np.cos(np.deg2rad(NOISE_MAX_INCIDENCE_DEG)))
     if typical_of.sum() >= 3:
@@ -2034,7 +2068,8 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
         clock.lap("level")
     cells = structure_cells(xyz, height, tan_top, config, sensor_xyz, reach_from, sensor_rng=rng)
     clock.lap("cells")
-    group = link_cells(cells.centroid, cells.count, config, cells.top - cells.bottom >= config.link_column_m)
+    group = link_cells(cells.centroid, cells.count, config,
+                       column_cells(cells.centroid, cells.top, cells.bottom, config))
     clock.lap("lines")
     label, chain = cell_pieces(cells, group, config)
     clock.lap("pieces")

@@ -371,6 +371,48 @@ def test_a_far_wall_seen_at_grazing_incidence_as_single_columns_is_one_wall():
     assert 2.5 < gap[0] < 4.0                        # its columns lie 4 m apart (less the streaks' length)
 
 
+def test_a_far_wall_whose_columns_slant_across_cells_none_a_metre_high_is_found_with_stacked_columns():
+    """Columns slanting 0.1 m along the wall per metre of height cross three or four 0.15 m cells each, and no
+    cell stands a metre high: each column is too short to be a piece and not a column for the grazing
+    links, so the wall is lost. Counting a cell together with the cells right above and below it in its
+    azimuth step (link_column_stack_m) makes each column a column, and the columns one step apart one wall."""
+    scan = grazing_columns(slant=0.1)
+
+    def on_wall(config):
+        return [s for s in extract_vertical_structure(scan, config).segments
+                if on_line(s, [11.2, -64], [11.2, -83], 0.05)]
+
+    assert on_wall(VerticalStructureConfig(link_column_stack_m=0.0)) == []
+    found = on_wall(VerticalStructureConfig(link_column_stack_m=0.3))
+    assert len(found) == 1
+    assert min(found[0][1], found[0][3]) < -82.5 and max(found[0][1], found[0][3]) > -66.0
+
+
+def test_a_cell_stands_as_a_column_with_the_cells_above_and_below_it_in_its_azimuth_step_only():
+    """Three cells of one azimuth step 0.1 m apart in range, 0.6 m high each, stack to 2 m: a column with
+    link_column_stack_m 0.3, not without it. A tree crown's cells in one azimuth lie at several depths
+    (0.5 m apart here) and cells in the next azimuth step are another column: neither stacks."""
+    from featmap.extraction.vertical_structure import column_cells
+
+    step = 0.2
+    config = VerticalStructureConfig(link_azimuth_deg=3.33 * step, link_column_stack_m=0.3)
+
+    def cells(azimuths_deg, ranges):
+        az = np.deg2rad(azimuths_deg)
+        return np.column_stack([ranges * np.cos(az), ranges * np.sin(az)])
+
+    bottom, top = np.array([0.3, 1.0, 1.7]), np.array([0.9, 1.6, 2.3])
+    streak = cells([5.0, 5.01, 5.02], np.array([50.0, 50.1, 50.2]))
+    assert column_cells(streak, top, bottom, config).tolist() == [True, True, True]
+    assert column_cells(streak, top, bottom, config.model_copy(update={"link_column_stack_m": 0.0})).tolist() == [False] * 3
+    crown = cells([5.0, 5.01, 5.02], np.array([50.0, 50.5, 51.0]))
+    assert column_cells(crown, top, bottom, config).tolist() == [False] * 3
+    next_steps = cells([5.0, 5.0 + step, 5.0 + 2 * step], np.array([50.0, 50.1, 50.2]))
+    assert column_cells(next_steps, top, bottom, config).tolist() == [False] * 3
+    tall = column_cells(streak[:1], np.array([1.5]), np.array([0.3]), config)
+    assert tall.tolist() == [True]                  # a cell a metre high is a column by itself
+
+
 def test_walls_joined_from_single_columns_do_not_set_the_scans_typical_spread():
     """Seen at grazing incidence a wall's range noise lies along it, so a wall joined from single columns
     is thinner than the sensor's noise: it must not lower the spread a short wall is held to."""
@@ -392,6 +434,26 @@ def test_walls_joined_from_single_columns_do_not_set_the_scans_typical_spread():
 
     assert kept(chain) == 7                       # typical 0.02 (the three head-on walls): 0.035 <= 2 x 0.02
     assert kept(None) == 6                        # typical 0.011 with the chains: the short wall is dropped
+
+
+def test_sparse_walls_can_be_left_out_of_the_scans_typical_spread():
+    """Walls sampled in columns metres apart (returns leaving gaps longer than max_gap_m) are as thin as
+    the walls joined from single columns; with typical_spread_skips_sparse they do not lower the spread a
+    short wall is held to either (by default, as in version 15, they do)."""
+    from featmap.extraction.vertical_structure import PieceMeasures, wall_segments
+
+    n = 7
+    along_x = np.column_stack([np.arange(n) * 30.0 + 10, np.full(n, 20.0)])
+    a, b = along_x, along_x + [8.0, 0.0]
+    b[-1] = a[-1] + [2.0, 0.0]                                    # the last piece: a short wall
+    rms = np.array([0.02, 0.02, 0.02, 0.002, 0.002, 0.002, 0.035])
+    max_gap = np.array([0.3, 0.3, 0.3, 2.5, 2.5, 2.5, 0.3])       # three sparse walls
+    one = np.ones(n)
+    m = PieceMeasures(a=a, b=b, count=100 * one, n_points=100 * one, z_mean=0 * one, z_min=-1 * one,
+                      z_max=2 * one, rms=rms, core=one, behind=0 * one, max_gap=max_gap, column_curve=0 * one)
+    skip = wall_segments(m, VerticalStructureConfig(typical_spread_skips_sparse=True), 0.2)
+    assert len(skip) == 7                         # typical 0.02 (the three dense walls): 0.035 <= 2 x 0.02
+    assert len(wall_segments(m, VerticalStructureConfig(), 0.2)) == 6      # typical 0.011: the short wall goes
 
 
 def test_far_walls_seen_obliquely_do_not_set_the_spread_a_near_wall_is_held_to():
