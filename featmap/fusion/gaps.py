@@ -4,6 +4,8 @@ A fused feature is drawn between the extreme projections of its members. When a 
 or two walls lie in line with a passage between them, no member covers the opening, yet the fused
 line spans it. :func:`split_at_gaps` cuts every fused feature where the union of its members'
 projections leaves a gap longer than ``min_gap_m``; each piece keeps the feature's line.
+:func:`split_at_unresolved_gaps` also cuts where only coarsely sampled views cover the opening, and
+:func:`trim_coarse_ends` cuts back an end that only such views carry on towards the next facade in line.
 
 Used by every method (see :func:`featmap.fusion.registry.fuse`). All arrays in the world frame.
 """
@@ -13,6 +15,16 @@ from __future__ import annotations
 import numpy as np
 
 from featmap.geometry import segment_lengths
+
+END_EPS_M = 0.05
+"""A feature's end less than this beyond a finer member's is that member's (metres)."""
+
+IN_LINE_M = 0.5
+STEP_M = 0.1
+IN_LINE_DEG = 5.0
+"""Another feature lies in line with a feature, on a line of its own (the next facade, set forward or back),
+when both its ends are within IN_LINE_M of that feature's line, its near end at least STEP_M off it, and
+it is within IN_LINE_DEG of parallel (:func:`trim_coarse_ends`)."""
 
 
 def member_intervals(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -186,3 +198,90 @@ def _unresolved_gaps(lo: np.ndarray, hi: np.ndarray, max_gap: np.ndarray, gap_m:
     shown = ((others_lo[None, :] <= start[:, None]) & (others_hi[None, :] >= end[:, None])
              & (others_gap[None, :] < (end - start)[:, None])).any(axis=1)
     return np.column_stack([start[~shown], end[~shown]])
+
+
+def trim_coarse_ends(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray, max_gap: np.ndarray,
+                     factor: float) -> tuple[np.ndarray, int]:
+    """Cut features' ends back to where a finer view starts, when the coarser views beyond it cover the
+    stretch with less than ``factor`` of their longest gaps.
+
+    A far view at grazing incidence samples a wall in columns metres apart; its last column may be the
+    first of the next building in line, past the passage between them, and the fused feature, drawn
+    between its members' extreme projections, then runs into the passage. At each end the cut point is
+    the nearest member end (more than ``END_EPS_M`` in) whose member is at least twice as finely sampled
+    (``max_gap``) as the median of the members reaching past it, and it is taken when the stretch is shorter
+    than ``factor`` times that median (those views cover it with about one column, no evidence of wall)
+    and another feature begins within that median past the cut point, in line but on a line of its own
+    (:func:`_in_line_beyond`: the next building, set forward or back, whose first column the coarse views
+    joined to this wall). A longer stretch (several columns: the far part of a wall only far views see),
+    one with nothing in line beyond, or one followed by a feature on this feature's own line (perhaps the
+    same wall beyond a stretch nothing saw well), is kept.
+
+    Args:
+        fused: (M, 4) fused features; segments: (N, 4) input segments; labels: (N,) their feature or -1;
+        max_gap: (N,) each segment's longest stretch between consecutive returns (metres, >= 0);
+        factor: the bound on a cut stretch, in longest gaps (> 0).
+    Returns:
+        ((M, 4) the features on their own lines, ends moved inwards or kept exactly, the number of ends cut).
+    """
+    fused = np.array(fused, dtype=float).reshape(-1, 4)
+    labels = np.asarray(labels, dtype=np.int64)
+    idx, lo, hi = member_intervals(fused, segments, labels)
+    feature = labels[idx]
+    gap = np.asarray(max_gap, dtype=float)[idx]
+    length = segment_lengths(fused)
+    n = len(fused)
+    cut_at = np.zeros((n, 2))                                # metres cut at the first and at the second end
+    order = np.argsort(feature, kind="stable")
+    bounds = np.searchsorted(feature[order], np.arange(n + 1))
+    for k in range(n):
+        mine = order[bounds[k]:bounds[k + 1]]
+        if len(mine) < 2:
+            continue
+        for side, inward in enumerate((lo[mine], length[k] - hi[mine])):     # each member's distance from the end
+            g = gap[mine]
+            for j in np.argsort(inward, kind="stable"):
+                x = inward[j]
+                if x <= END_EPS_M:
+                    continue
+                if x >= factor * g.max():                    # no stretch this long is covered by one column
+                    break
+                past = inward < x - 1e-9
+                if not past.any():
+                    continue
+                coarse = float(np.median(g[past]))
+                if g[j] <= 0.5 * coarse and x < factor * coarse:
+                    if _in_line_beyond(fused, length, k, side, x, x + coarse):
+                        cut_at[k, side] = x
+                    break
+    moved = cut_at.any(axis=1)                               # (the others keep their ends exactly)
+    if moved.any():
+        u = (fused[moved, 2:] - fused[moved, :2]) / length[moved, None]
+        a = fused[moved, :2].copy()
+        fused[moved] = np.column_stack([a + cut_at[moved, :1] * u, a + (length[moved] - cut_at[moved, 1])[:, None] * u])
+    return fused, int(np.count_nonzero(cut_at))
+
+
+def _in_line_beyond(fused: np.ndarray, length: np.ndarray, k: int, side: int, start: float, reach: float) -> bool:
+    """Whether another of the (M, 4) ``fused`` features lies in line with feature ``k`` but on a line of
+    its own (its near end ``STEP_M`` to ``IN_LINE_M`` off ``k``'s line, within ``IN_LINE_DEG`` of parallel)
+    and begins past the point ``start`` in from ``k``'s ``side`` end (0: first, 1: second), at most
+    ``reach`` out from that point: the next building in line, whose first column a coarse view joined to
+    this one. A feature on ``k``'s own line may be the same wall beyond a stretch nothing saw well."""
+    if length[k] <= 0 or len(fused) < 2:
+        return False
+    a, b = fused[k, :2], fused[k, 2:]
+    u = (b - a) / length[k]
+    origin, out = (a + start * u, -u) if side == 0 else (b - start * u, u)
+    normal = np.array([-u[1], u[0]])
+    others = np.delete(np.arange(len(fused)), k)
+    p, q = fused[others, :2], fused[others, 2:]
+    d = q - p
+    norm = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
+    parallel = np.abs(d @ u) / norm >= np.cos(np.deg2rad(IN_LINE_DEG))
+    off_p, off_q = np.abs((p - origin) @ normal), np.abs((q - origin) @ normal)
+    along_p, along_q = (p - origin) @ out, (q - origin) @ out
+    near_end = np.minimum(along_p, along_q)
+    near_off = np.where(along_p <= along_q, off_p, off_q)
+    in_line = (np.maximum(off_p, off_q) <= IN_LINE_M) & (near_off >= STEP_M)
+    return bool(np.any(parallel & in_line & (near_end > 0) & (near_end <= reach)))

@@ -21,7 +21,9 @@ parallel duplicates. :func:`refine` repairs them from the member segments alone,
 3. **gaps**: every feature is cut where its members leave more than ``split_gap_m`` of its line
    unobserved (doorways, passages between walls in line), and, with the segments' ``max_gap`` column,
    where the members that resolve gaps of ``resolved_gap_m`` leave one that the others are too coarsely
-   sampled to close; see :mod:`featmap.fusion.gaps`.
+   sampled to close; with ``coarse_end_factor`` (off by default) a feature's end that only coarse views
+   carry on past its finely sampled members towards the next facade in line is cut back; see
+   :mod:`featmap.fusion.gaps`.
 
 A cluster that changes is refitted as the length-weighted total-least-squares line through its
 members' endpoints, cut at their extreme projections (the proposed method's fit); unchanged clusters
@@ -38,7 +40,7 @@ from scipy.spatial import cKDTree
 
 from featmap.config import Section
 from featmap.fusion.base import FusionResult, SupportRule, fit_clusters, relabel_by_first_appearance, validate_input
-from featmap.fusion.gaps import observed_length, split_at_gaps, split_at_unresolved_gaps
+from featmap.fusion.gaps import observed_length, split_at_gaps, split_at_unresolved_gaps, trim_coarse_ends
 from featmap.geometry import segment_lengths
 
 
@@ -52,6 +54,7 @@ class RefineConfig(Section):
     kept_heavier_ratio: float = Field(0.5, ge=0, le=1, description="two kept features also merge when the lighter lies within this fraction of max_offset_m of the heavier's line (0 = only when each lies near the other's)")
     split_gap_m: float = Field(0.0, ge=0, description="cut features where no member covers this much of their line, e.g. doorways (0 = off)")
     resolved_gap_m: float = Field(3.0, ge=0, description="cut features where the members whose returns lie less than this apart (the segments' max_gap column) leave this much of their line between them and no member that spans it is sampled finely enough to show it (a far view at grazing incidence covers the passage between two buildings in line without seeing it; 0 = off)")
+    coarse_end_factor: float = Field(0.0, ge=0, description="after the cut at unresolved gaps, cut a feature's end back to where a member at least twice as finely sampled (max_gap) starts, when the members reaching past it cover that stretch with fewer than this many of their longest gaps (median) and another feature begins just beyond, in line but on a line of its own (a facade set 0.1-0.5 m forward or back): the last column of a far view at grazing incidence may be the next building's in line, past the passage (0 = off; needs resolved_gap_m > 0; measured in docs/results.md, not adopted)")
 
 
 def _moments(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -425,6 +428,9 @@ def refine(result: FusionResult, segments, scan, config: RefineConfig,
         before = len(fused)
         fused, labels, _ = split_at_unresolved_gaps(fused, segments, labels, max_gap, config.resolved_gap_m)
         stats["unresolved_gap_pieces"] = int(len(fused) - before)
+        if config.coarse_end_factor > 0:
+            fused, stats["coarse_ends_cut"] = trim_coarse_ends(fused, segments, labels, max_gap,
+                                                               config.coarse_end_factor)
 
     if len(bends) and len(fused):
         fused, stats["bends_joined"] = join_bends(fused, labels[bends[:, 0]], labels[bends[:, 1]])

@@ -6,7 +6,8 @@ import pytest
 from featmap.evaluation.map_metric import sample_segments, truth_free_metrics
 from featmap.fusion import FusionConfig, fuse
 from featmap.fusion.base import FusionResult, fit_clusters
-from featmap.fusion.gaps import interval_union, observed_length, split_at_gaps, split_at_unresolved_gaps
+from featmap.fusion.gaps import (interval_union, observed_length, split_at_gaps, split_at_unresolved_gaps,
+                                 trim_coarse_ends)
 from featmap.fusion.refine import RefineConfig, refine
 from featmap.geometry import point_segment_distance, segment_lengths
 from featmap.simulation.segments import observe_walls
@@ -157,6 +158,68 @@ def test_resolved_gap_split_through_the_registry_needs_the_max_gap_column():
     ends = np.sort(np.sort(cut.segments[:, [0, 2]], axis=1), axis=0)
     assert 19.5 < ends[0, 1] < 20.5 and 25.5 < ends[1, 0] < 26.5
     assert np.array_equal(fuse("proposed", segs, scan, on).segments, bridged.segments)     # no column: off
+
+
+def _wall_with_a_coarse_end(coarse_to_m: float = 22.5, coarse_gap_m: float = 3.0):
+    """A facade on y = 0 from 0 to 20 m seen head-on in 10 scans (returns 0.2 m apart) and in 6 far views at
+    grazing incidence (columns ``coarse_gap_m`` apart) that run on to ``coarse_to_m``: (segments (16, 4),
+    max_gap (16,))."""
+    rng = np.random.default_rng(8)
+    fine = np.column_stack([rng.uniform(0.0, 0.05, 10), rng.normal(0, 0.01, 10), rng.uniform(19.95, 20.0, 10),
+                            rng.normal(0, 0.01, 10)])
+    fine[0, 2] = 20.0
+    coarse = np.column_stack([rng.uniform(0.0, 0.05, 6), rng.normal(0, 0.01, 6),
+                              rng.uniform(coarse_to_m - 0.05, coarse_to_m, 6), rng.normal(0, 0.01, 6)])
+    coarse[0, 2] = coarse_to_m
+    return np.vstack([fine, coarse]), np.r_[np.full(10, 0.2), np.full(6, coarse_gap_m)]
+
+
+def test_a_coarse_end_running_on_to_the_next_building_in_line_is_cut_back_to_the_fine_views():
+    segs, max_gap = _wall_with_a_coarse_end()
+    labels = np.zeros(len(segs), np.int64)
+    wall = fit_clusters(segs, labels, 1)
+    assert wall[0, [0, 2]].max() == pytest.approx(22.5, abs=0.02)           # drawn to the coarse views' end
+    next_building = np.array([[23.0, 0.3, 40.0, 0.3]])                       # in line, 0.3 m offset, 3 m on
+    fused = np.vstack([wall, next_building])
+    out, cut = trim_coarse_ends(fused, segs, labels, max_gap, 1.5)
+    assert cut == 1
+    assert out[0, [0, 2]].max() == pytest.approx(20.0, abs=0.01)            # where the fine views end
+    assert np.array_equal(out[1], fused[1])                                  # the other feature as it was
+    start = np.argmin(wall[0, [0, 2]])
+    assert np.array_equal(out[0, 2 * start:2 * start + 2], wall[0, 2 * start:2 * start + 2])   # other end exact
+    # Nothing in line beyond (a wall's far part only far views see): kept exactly.
+    alone, cut = trim_coarse_ends(wall, segs, labels, max_gap, 1.5)
+    assert cut == 0 and np.array_equal(alone, wall)
+    # The next feature on this one's own line may be the same wall beyond a stretch nothing saw well: kept.
+    same_line = np.vstack([wall, next_building - [0, 0.3, 0, 0.3]])
+    assert trim_coarse_ends(same_line, segs, labels, max_gap, 1.5)[1] == 0
+    # A building beside the line, not in it (2 m off): kept.
+    beside = np.vstack([wall, next_building + [0, 1.7, 0, 1.7]])
+    assert trim_coarse_ends(beside, segs, labels, max_gap, 1.5)[1] == 0
+    # A stretch of several coarse columns (5 m past the fine views, 1.5 x 3 m = 4.5 m): evidence of wall, kept.
+    segs5, gap5 = _wall_with_a_coarse_end(coarse_to_m=25.0)
+    wall5 = fit_clusters(segs5, labels, 1)
+    far_next = np.array([[26.0, 0.3, 40.0, 0.3]])
+    assert trim_coarse_ends(np.vstack([wall5, far_next]), segs5, labels, gap5, 1.5)[1] == 0
+    # Every member as fine as the others: nothing to weigh, nothing cut.
+    assert trim_coarse_ends(fused, segs, labels, np.full(len(segs), 0.2), 1.5)[1] == 0
+
+
+def test_coarse_end_trim_through_the_registry_is_off_by_default():
+    segs, max_gap = _wall_with_a_coarse_end()
+    rng = np.random.default_rng(9)
+    next_segs, _ = observe_walls(np.array([23.0, 0.3, 40.0, 0.3]), 10, 0.01, rng, min_fraction=0.9)
+    segs = np.vstack([segs, next_segs])
+    max_gap = np.r_[max_gap, np.full(len(next_segs), 0.2)]
+    scan = np.r_[np.arange(10), 20 + np.arange(6), np.arange(len(next_segs))]
+    base = {"proposed": {"min_support": 2}, "corners": {"mode": "none"}}
+    off = fuse("proposed", segs, scan, FusionConfig.model_validate(base), max_gap=max_gap)
+    on = fuse("proposed", segs, scan, FusionConfig.model_validate({**base, "refine": {"coarse_end_factor": 1.5}}),
+              max_gap=max_gap)
+    assert len(off.segments) == len(on.segments) == 2
+    assert off.segments[:, [0, 2]].max(axis=1).min() == pytest.approx(22.5, abs=0.05)   # runs into the passage
+    assert on.segments[:, [0, 2]].max(axis=1).min() == pytest.approx(20.0, abs=0.05)    # ends with the facade
+    assert on.extras["refine"]["coarse_ends_cut"] == 1 and "coarse_ends_cut" not in off.extras["refine"]
 
 
 def test_views_of_one_wall_left_in_two_clusters_are_merged():
