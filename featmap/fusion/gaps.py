@@ -13,6 +13,7 @@ Used by every method (see :func:`featmap.fusion.registry.fuse`). All arrays in t
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from featmap.geometry import segment_lengths
 
@@ -212,7 +213,7 @@ def trim_coarse_ends(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray
     (``max_gap``) as the median of the members reaching past it, and it is taken when the stretch is shorter
     than ``factor`` times that median (those views cover it with about one column, no evidence of wall)
     and another feature begins within that median past the cut point, in line but on a line of its own
-    (:func:`_in_line_beyond`: the next building, set forward or back, whose first column the coarse views
+    (:func:`_facades_in_line`: the next building, set forward or back, whose first column the coarse views
     joined to this wall). A longer stretch (several columns: the far part of a wall only far views see),
     one with nothing in line beyond, or one followed by a feature on this feature's own line (perhaps the
     same wall beyond a stretch nothing saw well), is kept.
@@ -234,26 +235,26 @@ def trim_coarse_ends(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray
     cut_at = np.zeros((n, 2))                                # metres cut at the first and at the second end
     order = np.argsort(feature, kind="stable")
     bounds = np.searchsorted(feature[order], np.arange(n + 1))
-    for k in range(n):
+    for k, side, beyond in _ends_before_a_facade_in_line(fused, length, feature, gap, factor):
         mine = order[bounds[k]:bounds[k + 1]]
-        if len(mine) < 2:
+        g = gap[mine]
+        if len(mine) < 2 or g.min() > 0.5 * g.max():          # no member twice as fine as others: nothing to weigh
             continue
-        for side, inward in enumerate((lo[mine], length[k] - hi[mine])):     # each member's distance from the end
-            g = gap[mine]
-            for j in np.argsort(inward, kind="stable"):
-                x = inward[j]
-                if x <= END_EPS_M:
-                    continue
-                if x >= factor * g.max():                    # no stretch this long is covered by one column
-                    break
-                past = inward < x - 1e-9
-                if not past.any():
-                    continue
-                coarse = float(np.median(g[past]))
-                if g[j] <= 0.5 * coarse and x < factor * coarse:
-                    if _in_line_beyond(fused, length, k, side, x, x + coarse):
-                        cut_at[k, side] = x
-                    break
+        inward = lo[mine] if side == 0 else length[k] - hi[mine]    # each member's distance from the end
+        by_depth = np.argsort(inward, kind="stable")
+        x, g = inward[by_depth], g[by_depth]
+        past = np.searchsorted(x, x - 1e-9, side="left")      # members reaching past each one (a prefix)
+        widest = np.maximum.accumulate(g)[np.maximum(past - 1, 0)]
+        # Only where the median of the members reaching past could reach both bounds: the widest of them
+        # bounds it, and half of them must be twice as coarse (each member in turn, nearest the end first,
+        # until one is weighed).
+        maybe = np.flatnonzero((x > END_EPS_M) & (past > 0) & (2 * g <= widest) & (x < factor * widest))
+        for i in maybe[_half_twice_as_coarse(g, past, maybe)]:
+            coarse = float(np.median(g[:past[i]]))
+            if 2 * g[i] <= coarse and x[i] < factor * coarse:
+                if np.any((beyond > -x[i]) & (beyond <= coarse)):    # it begins past the cut point, within a column
+                    cut_at[k, side] = x[i]
+                break
     moved = cut_at.any(axis=1)                               # (the others keep their ends exactly)
     if moved.any():
         u = (fused[moved, 2:] - fused[moved, :2]) / length[moved, None]
@@ -262,26 +263,63 @@ def trim_coarse_ends(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray
     return fused, int(np.count_nonzero(cut_at))
 
 
-def _in_line_beyond(fused: np.ndarray, length: np.ndarray, k: int, side: int, start: float, reach: float) -> bool:
-    """Whether another of the (M, 4) ``fused`` features lies in line with feature ``k`` but on a line of
-    its own (its near end ``STEP_M`` to ``IN_LINE_M`` off ``k``'s line, within ``IN_LINE_DEG`` of parallel)
-    and begins past the point ``start`` in from ``k``'s ``side`` end (0: first, 1: second), at most
-    ``reach`` out from that point: the next building in line, whose first column a coarse view joined to
-    this one. A feature on ``k``'s own line may be the same wall beyond a stretch nothing saw well."""
-    if length[k] <= 0 or len(fused) < 2:
-        return False
+def _half_twice_as_coarse(g: np.ndarray, past: np.ndarray, which: np.ndarray, chunk: int = 256) -> np.ndarray:
+    """(len(which),) for members ``which`` (indices into ``g`` (K,), the gaps in order of depth): whether at
+    least half of the ``past[i]`` members before member ``i`` have a gap at least twice its own (the median
+    of theirs can then be; a bound, not the median). Chunked: at most ``chunk`` x K cells at a time."""
+    out = np.zeros(len(which), dtype=bool)
+    rank = np.arange(len(g))
+    for s in range(0, len(which), chunk):
+        w = which[s:s + chunk]
+        coarser = ((g[None, :] >= 2 * g[w, None]) & (rank[None, :] < past[w, None])).sum(axis=1)
+        out[s:s + chunk] = 2 * coarser >= past[w]
+    return out
+
+
+def _ends_before_a_facade_in_line(fused: np.ndarray, length: np.ndarray, feature: np.ndarray, gap: np.ndarray,
+                                  factor: float) -> list[tuple[int, int, np.ndarray]]:
+    """The ends :func:`trim_coarse_ends` may cut: (feature, side (0: first end, 1: second), the distances
+    outwards from that end at which the facades in line beyond it begin (:func:`_facades_in_line`)), for
+    the ends of the (M, 4) ``fused`` features where such a facade begins within ``factor`` times the widest
+    ``gap`` (K,) of the members of ``feature`` (K,) (no cut reaches farther)."""
+    n = len(fused)
+    if n < 2 or not len(feature):
+        return []
+    widest = np.zeros(n)
+    np.maximum.at(widest, feature, gap)
+    ends = fused.reshape(-1, 2)
+    window = np.repeat(max(factor, 1.0) * widest, 2)
+    near = cKDTree(ends).query_ball_point(ends, window + IN_LINE_M)
+    out = []
+    for e in np.flatnonzero(window > 0):
+        k, side = divmod(int(e), 2)
+        others = np.unique(np.asarray(near[e], dtype=np.int64) // 2)
+        others = others[others != k]
+        if len(others) == 0 or length[k] <= 0:
+            continue
+        beyond = _facades_in_line(fused, length, k, side, others)
+        beyond = beyond[(beyond > -window[e]) & (beyond <= window[e])]
+        if len(beyond):
+            out.append((k, side, beyond))
+    return out
+
+
+def _facades_in_line(fused: np.ndarray, length: np.ndarray, k: int, side: int, others: np.ndarray) -> np.ndarray:
+    """Where the ``others`` of the (M, 4) ``fused`` features that lie in line with feature ``k`` but on a line of
+    their own begin: the distance of each one's near end outwards from ``k``'s ``side`` end (0: first, 1:
+    second), for those within ``IN_LINE_DEG`` of parallel with both ends within ``IN_LINE_M`` of ``k``'s line and
+    the near end at least ``STEP_M`` off it (the next facade, set forward or back: a feature on ``k``'s own
+    line may be the same wall beyond a stretch nothing saw well). (J,) metres, J <= len(others)."""
     a, b = fused[k, :2], fused[k, 2:]
     u = (b - a) / length[k]
-    origin, out = (a + start * u, -u) if side == 0 else (b - start * u, u)
+    origin, out = (a, -u) if side == 0 else (b, u)
     normal = np.array([-u[1], u[0]])
-    others = np.delete(np.arange(len(fused)), k)
     p, q = fused[others, :2], fused[others, 2:]
     d = q - p
     norm = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
     parallel = np.abs(d @ u) / norm >= np.cos(np.deg2rad(IN_LINE_DEG))
     off_p, off_q = np.abs((p - origin) @ normal), np.abs((q - origin) @ normal)
     along_p, along_q = (p - origin) @ out, (q - origin) @ out
-    near_end = np.minimum(along_p, along_q)
     near_off = np.where(along_p <= along_q, off_p, off_q)
-    in_line = (np.maximum(off_p, off_q) <= IN_LINE_M) & (near_off >= STEP_M)
-    return bool(np.any(parallel & in_line & (near_end > 0) & (near_end <= reach)))
+    in_line = parallel & (np.maximum(off_p, off_q) <= IN_LINE_M) & (near_off >= STEP_M)
+    return np.minimum(along_p, along_q)[in_line]
