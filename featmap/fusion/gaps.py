@@ -12,6 +12,8 @@ Used by every method (see :func:`featmap.fusion.registry.fuse`). All arrays in t
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -49,6 +51,35 @@ def member_intervals(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray
     lo = np.clip(np.minimum(t1, t2), 0.0, length)
     hi = np.clip(np.maximum(t1, t2), 0.0, length)
     return idx, lo, hi
+
+
+@dataclass(frozen=True)
+class _Members:
+    """The members of M fused features with their sampling, grouped by feature: ``idx`` (K,) index into the
+    segments, ``lo``/``hi`` (K,) the interval each covers on its feature's line (:func:`member_intervals`),
+    ``feature`` (K,) and ``gap`` (K,) its feature and ``max_gap``; ``order``/``starts`` group them."""
+
+    idx: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    feature: np.ndarray
+    gap: np.ndarray
+    order: np.ndarray
+    starts: np.ndarray
+
+    def of(self, k: int) -> np.ndarray:
+        """Positions (into the (K,) arrays) of feature ``k``'s members."""
+        return self.order[self.starts[k]:self.starts[k + 1]]
+
+
+def _members(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray, max_gap: np.ndarray) -> _Members:
+    """The members of the (M, 4) ``fused`` features (``labels`` (N,) of the (N, 4) ``segments``, -1 for
+    none) with their ``max_gap`` (N,), grouped by feature."""
+    idx, lo, hi = member_intervals(fused, segments, labels)
+    feature = labels[idx]
+    order = np.argsort(feature, kind="stable")
+    starts = np.searchsorted(feature[order], np.arange(len(fused) + 1))
+    return _Members(idx, lo, hi, feature, np.asarray(max_gap, dtype=float)[idx], order, starts)
 
 
 def interval_union(group: np.ndarray, lo: np.ndarray, hi: np.ndarray, n_groups: int,
@@ -150,17 +181,14 @@ def split_at_unresolved_gaps(fused: np.ndarray, segments: np.ndarray, labels: np
     """
     fused = np.asarray(fused, dtype=float).reshape(-1, 4)
     labels = np.asarray(labels, dtype=np.int64)
-    idx, lo, hi = member_intervals(fused, segments, labels)
-    feature = labels[idx]
-    gap = np.asarray(max_gap, dtype=float)[idx]
+    members = _members(fused, segments, labels, max_gap)
+    idx, lo, hi, feature, gap = members.idx, members.lo, members.hi, members.feature, members.gap
     n = len(fused)
     resolving = gap < gap_m
     mixed = (np.bincount(feature, resolving, n) > 0) & (np.bincount(feature, ~resolving, n) > 0)
-    order = np.argsort(feature, kind="stable")
-    starts = np.searchsorted(feature[order], np.arange(n + 1))
     cuts_of = {}                              # only features with both kinds of member can be cut
     for k in np.flatnonzero(mixed):
-        mine = order[starts[k]:starts[k + 1]]
+        mine = members.of(k)
         cuts = _unresolved_gaps(lo[mine], hi[mine], gap[mine], gap_m)
         if len(cuts):
             cuts_of[int(k)] = (mine, cuts)
@@ -227,20 +255,15 @@ def trim_coarse_ends(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray
     """
     fused = np.array(fused, dtype=float).reshape(-1, 4)
     labels = np.asarray(labels, dtype=np.int64)
-    idx, lo, hi = member_intervals(fused, segments, labels)
-    feature = labels[idx]
-    gap = np.asarray(max_gap, dtype=float)[idx]
+    members = _members(fused, segments, labels, max_gap)
     length = segment_lengths(fused)
-    n = len(fused)
-    cut_at = np.zeros((n, 2))                                # metres cut at the first and at the second end
-    order = np.argsort(feature, kind="stable")
-    bounds = np.searchsorted(feature[order], np.arange(n + 1))
-    for k, side, beyond in _ends_before_a_facade_in_line(fused, length, feature, gap, factor):
-        mine = order[bounds[k]:bounds[k + 1]]
-        g = gap[mine]
+    cut_at = np.zeros((len(fused), 2))                       # metres cut at the first and at the second end
+    for k, side, beyond in _ends_before_a_facade_in_line(fused, length, members.feature, members.gap, factor):
+        mine = members.of(k)
+        g = members.gap[mine]
         if len(mine) < 2 or g.min() > 0.5 * g.max():          # no member twice as fine as others: nothing to weigh
             continue
-        inward = lo[mine] if side == 0 else length[k] - hi[mine]    # each member's distance from the end
+        inward = members.lo[mine] if side == 0 else length[k] - members.hi[mine]    # each one's distance from the end
         by_depth = np.argsort(inward, kind="stable")
         x, g = inward[by_depth], g[by_depth]
         past = np.searchsorted(x, x - 1e-9, side="left")      # members reaching past each one (a prefix)
