@@ -21,7 +21,7 @@ parallel duplicates. :func:`refine` repairs them from the member segments alone,
 3. **gaps**: every feature is cut where its members leave more than ``split_gap_m`` of its line
    unobserved (doorways, passages between walls in line), and, with the segments' ``max_gap`` column,
    where the members that resolve gaps of ``resolved_gap_m`` leave one that the others are too coarsely
-   sampled to close; with ``coarse_end_factor`` (off by default) a feature's end that only coarse views
+   sampled to close; with ``coarse_end_factor`` a feature's end that only coarse views
    carry on past its finely sampled members towards the next facade in line is cut back; see
    :mod:`featmap.fusion.gaps`.
 
@@ -54,7 +54,7 @@ class RefineConfig(Section):
     kept_heavier_ratio: float = Field(0.5, ge=0, le=1, description="two kept features also merge when the lighter lies within this fraction of max_offset_m of the heavier's line (0 = only when each lies near the other's)")
     split_gap_m: float = Field(0.0, ge=0, description="cut features where no member covers this much of their line, e.g. doorways (0 = off)")
     resolved_gap_m: float = Field(3.0, ge=0, description="cut features where the members whose returns lie less than this apart (the segments' max_gap column) leave this much of their line between them and no member that spans it is sampled finely enough to show it (a far view at grazing incidence covers the passage between two buildings in line without seeing it; 0 = off)")
-    coarse_end_factor: float = Field(0.0, ge=0, description="after the cut at unresolved gaps, cut a feature's end back to where a member at least twice as finely sampled (max_gap) starts, when the members reaching past it cover that stretch with fewer than this many of their longest gaps (median) and another feature begins just beyond, in line but on a line of its own (a facade set 0.1-0.5 m forward or back): the last column of a far view at grazing incidence may be the next building's in line, past the passage (0 = off; needs resolved_gap_m > 0; measured in docs/results.md, not adopted)")
+    coarse_end_factor: float = Field(2.0, ge=0, description="after the cut at unresolved gaps, cut a feature's end back to where a member at least twice as finely sampled (max_gap) starts, when the members reaching past it cover that stretch with fewer than this many of their longest gaps (median) and another feature begins just beyond, in line but on a line of its own (a facade set 0.1-0.5 m forward or back): the last column of a far view at grazing incidence may be the next building's in line, past the passage (0 = off; needs resolved_gap_m > 0; chosen on the tuning worlds, docs/results.md)")
 
 
 def _moments(points: np.ndarray, weights: np.ndarray) -> np.ndarray:

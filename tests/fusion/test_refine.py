@@ -205,7 +205,7 @@ def test_a_coarse_end_running_on_to_the_next_building_in_line_is_cut_back_to_the
     assert trim_coarse_ends(fused, segs, labels, np.full(len(segs), 0.2), 1.5)[1] == 0
 
 
-def test_coarse_end_trim_through_the_registry_is_off_by_default():
+def test_coarse_end_trim_through_the_registry_is_on_by_default_and_off_at_zero():
     segs, max_gap = _wall_with_a_coarse_end()
     rng = np.random.default_rng(9)
     next_segs, _ = observe_walls(np.array([23.0, 0.3, 40.0, 0.3]), 10, 0.01, rng, min_fraction=0.9)
@@ -213,9 +213,9 @@ def test_coarse_end_trim_through_the_registry_is_off_by_default():
     max_gap = np.r_[max_gap, np.full(len(next_segs), 0.2)]
     scan = np.r_[np.arange(10), 20 + np.arange(6), np.arange(len(next_segs))]
     base = {"proposed": {"min_support": 2}, "corners": {"mode": "none"}}
-    off = fuse("proposed", segs, scan, FusionConfig.model_validate(base), max_gap=max_gap)
-    on = fuse("proposed", segs, scan, FusionConfig.model_validate({**base, "refine": {"coarse_end_factor": 1.5}}),
-              max_gap=max_gap)
+    off = fuse("proposed", segs, scan, FusionConfig.model_validate({**base, "refine": {"coarse_end_factor": 0.0}}),
+               max_gap=max_gap)
+    on = fuse("proposed", segs, scan, FusionConfig.model_validate(base), max_gap=max_gap)
     assert len(off.segments) == len(on.segments) == 2
     assert off.segments[:, [0, 2]].max(axis=1).min() == pytest.approx(22.5, abs=0.05)   # runs into the passage
     assert on.segments[:, [0, 2]].max(axis=1).min() == pytest.approx(20.0, abs=0.05)    # ends with the facade
