@@ -73,6 +73,9 @@ HELDOUT_SPLIT_NAMES = tuple(HELDOUT_SPLITS)
 """Every held-out split has a generalization step and (but the first, whose step also runs its CARMEN log)
 a pose step."""
 
+DRAWN_FOLIAGE_SPLITS = ("heldout5", "heldout6", "heldout7")
+"""The held-out splits also run with drawn porous foliage (``--foliage drawn``): every split since the fifth."""
+
 STEPS = (
     _step("real_scans", "scripts/real_scan_figures.py", {"extraction_3d", "speed"}, "real_scans",
           shared=True, figures="docs/figures/real_scans/"),
@@ -87,15 +90,10 @@ STEPS = (
           {"extraction_3d", "simulation", *MAPPING}, "generalization_tuning_foliage"),
     _step("generalization_tuning_foliage_drawn", "benchmarks/bench_generalization.py --foliage drawn --docs",
           {"extraction_3d", "simulation", *MAPPING}, "generalization_tuning_foliage_drawn"),
-    _step("generalization_heldout5_foliage_drawn",
-          "benchmarks/bench_generalization.py --split heldout5 --foliage drawn --docs",
-          {"extraction_3d", "simulation", *MAPPING}, "generalization_heldout5_foliage_drawn"),
-    _step("generalization_heldout6_foliage_drawn",
-          "benchmarks/bench_generalization.py --split heldout6 --foliage drawn --docs",
-          {"extraction_3d", "simulation", *MAPPING}, "generalization_heldout6_foliage_drawn"),
-    _step("generalization_heldout7_foliage_drawn",
-          "benchmarks/bench_generalization.py --split heldout7 --foliage drawn --docs",
-          {"extraction_3d", "simulation", *MAPPING}, "generalization_heldout7_foliage_drawn"),
+    *(_step(f"generalization_{split}_foliage_drawn",
+            f"benchmarks/bench_generalization.py --split {split} --foliage drawn --docs",
+            {"extraction_3d", "simulation", *MAPPING}, f"generalization_{split}_foliage_drawn")
+      for split in DRAWN_FOLIAGE_SPLITS),
     _step("footprints", "benchmarks/bench_footprints.py --docs", {"extraction_3d", "simulation", *MAPPING},
           "footprints"),
     _step("pose_tuning_sim", "benchmarks/bench_pose_noise.py --parts sim --docs",
