@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from featmap.geometry import segment_lengths
+from featmap.geometry import segment_directions, segment_lengths
 
 END_EPS_M = 0.05
 """A feature's end less than this beyond a finer member's is that member's (metres)."""
@@ -28,6 +28,12 @@ IN_LINE_DEG = 5.0
 """Another feature lies in line with a feature, on a line of its own (the next facade, set forward or back),
 when both its ends are within IN_LINE_M of that feature's line, its near end at least STEP_M off it, and
 it is within IN_LINE_DEG of parallel (:func:`trim_coarse_ends`)."""
+
+
+def _points_along(segments: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(K, 2) the points at arc length ``t`` (K,) from the first endpoint of each of the (K, 4) ``segments``
+    along it (the first endpoint itself where a segment has no length and ``t`` is 0)."""
+    return segments[:, :2] + np.asarray(t, dtype=float)[:, None] * segment_directions(segments)
 
 
 def member_intervals(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -43,9 +49,7 @@ def member_intervals(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray
     idx = np.flatnonzero(labels >= 0)
     f = fused[labels[idx]]
     length = segment_lengths(f)
-    u = np.zeros((len(idx), 2))
-    ok = length > 0
-    u[ok] = (f[ok, 2:] - f[ok, :2]) / length[ok, None]
+    u = segment_directions(f)
     t1 = np.einsum("ij,ij->i", segments[idx, :2] - f[:, :2], u)
     t2 = np.einsum("ij,ij->i", segments[idx, 2:] - f[:, :2], u)
     lo = np.clip(np.minimum(t1, t2), 0.0, length)
@@ -148,11 +152,7 @@ def split_at_gaps(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray,
     rank = np.empty(len(order), dtype=np.int64)
     rank[order] = np.arange(len(order))
     group, p_lo, p_hi = group[order], p_lo[order], p_hi[order]
-    f = fused[group]
-    u = np.zeros((len(f), 2))
-    ok = length[group] > 0
-    u[ok] = (f[ok, 2:] - f[ok, :2]) / length[group][ok, None]
-    pieces = np.concatenate([f[:, :2] + p_lo[:, None] * u, f[:, :2] + p_hi[:, None] * u], axis=1)
+    pieces = np.concatenate([_points_along(fused[group], p_lo), _points_along(fused[group], p_hi)], axis=1)
     new_labels = np.full(len(labels), -1, dtype=np.int64)
     new_labels[idx] = rank[piece]
     return pieces, new_labels, group
@@ -206,8 +206,7 @@ def split_at_unresolved_gaps(fused: np.ndarray, segments: np.ndarray, labels: np
         middle = 0.5 * (lo[mine] + hi[mine])
         inside = np.clip(middle[:, None], bounds[:, 0], bounds[:, 1])
         new_labels[idx[mine]] = first[k] + np.argmin(np.abs(inside - middle[:, None]), axis=1)
-        u = (fused[k, 2:] - fused[k, :2]) / length[k]
-        ends = np.vstack([fused[k, :2], fused[k, :2] + cuts.ravel()[:, None] * u, fused[k, 2:]])
+        ends = np.vstack([fused[k, :2], _points_along(fused[[k] * cuts.size], cuts.ravel()), fused[k, 2:]])
         pieces[first[k]:first[k] + count[k]] = np.column_stack([ends[0::2], ends[1::2]])   # own ends kept exactly
     return pieces, new_labels, parent
 
@@ -280,9 +279,9 @@ def trim_coarse_ends(fused: np.ndarray, segments: np.ndarray, labels: np.ndarray
                 break
     moved = cut_at.any(axis=1)                               # (the others keep their ends exactly)
     if moved.any():
-        u = (fused[moved, 2:] - fused[moved, :2]) / length[moved, None]
-        a = fused[moved, :2].copy()
-        fused[moved] = np.column_stack([a + cut_at[moved, :1] * u, a + (length[moved] - cut_at[moved, 1])[:, None] * u])
+        kept = fused[moved]
+        fused[moved] = np.column_stack([_points_along(kept, cut_at[moved, 0]),
+                                        _points_along(kept, length[moved] - cut_at[moved, 1])])
     return fused, int(np.count_nonzero(cut_at))
 
 
