@@ -1167,8 +1167,60 @@ def _group_median(group: np.ndarray, value: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+@dataclass(frozen=True)
+class PieceTests:
+    """Which of n pieces pass each of a stage's tests, by name, in the order the extractor applies them
+    (a piece is kept when it passes them all).
+
+    Attributes:
+        a, b: (n, 2) the pieces' ends (the levelled velodyne frame of :func:`extract_vertical_structure`).
+        passed: test name -> (n,) bool, True where the piece passes that test.
+        cell_piece: (C,) the piece of each cell in ``[0, n)``, -1 for none (the height tests only; None for
+            the final ones, which are made on :class:`PieceMeasures`, one row per piece).
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    passed: dict[str, np.ndarray]
+    cell_piece: np.ndarray | None = None
+
+    @property
+    def kept(self) -> np.ndarray:
+        """(n,) True for the pieces that pass every test."""
+        kept = np.ones(len(self.a), bool)
+        for passed in self.passed.values():
+            kept &= passed
+        return kept
+
+    def failed(self, k: int) -> list[str]:
+        """The names of the tests piece ``k`` fails, in order."""
+        return [name for name, passed in self.passed.items() if not passed[k]]
+
+    @staticmethod
+    def empty(cells: int = 0) -> "PieceTests":
+        """No piece (``cells`` cells, none in a piece)."""
+        return PieceTests(a=np.zeros((0, 2)), b=np.zeros((0, 2)), passed={}, cell_piece=np.full(cells, -1))
+
+
 def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
-    """(C,) piece label of the cells of pieces that pass every test but the final per-point ones; -1 = none.
+    """(C,) piece label of the cells of pieces that pass every test but the final per-point ones (the
+    height tests, :func:`height_tests`); -1 = none."""
+    return kept_cells(height_tests(cells, label, config))
+
+
+def kept_cells(tests: PieceTests) -> np.ndarray:
+    """(C,) the piece label of each cell whose piece passes every one of the height ``tests``; -1 = none."""
+    piece = tests.cell_piece
+    keep = piece >= 0
+    keep[keep] = tests.kept[piece[keep]]
+    return np.where(keep, piece, -1)
+
+
+def height_tests(cells: Cells, label: np.ndarray, config: VerticalStructureConfig) -> PieceTests:
+    """The tests on the pieces' cells (``label`` (C,) per cell, -1 = none) before the final per-point
+    ones: enough returns (``points``), ``length``, spread of the cells about the piece's line (``rms``),
+    height ``span``, ``top``, ``reaches_down`` (short pieces), ``tall`` (one of its ways),
+    ``not_crown_underside`` (``floating_min_top_m``) and ``not_trunk`` (``trunk_max_share``).
 
     Heights are judged along the piece, in ``COLUMN_M`` columns: its top is the median of its columns'
     highest points, and it reaches the top beam when at least half of its columns do (within
@@ -1178,12 +1230,13 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     the top beam, or cut by a single beam where the beams lie far apart (``one_ring_min_length_m``);
     shorter ones must reach down near the ground (see the module docstring).
     """
-    out = np.full(len(cells), -1)
     members = np.flatnonzero(label >= 0)
     if len(members) == 0:
-        return out
+        return PieceTests.empty(len(cells))
     _, piece = _labels(label[members])
     n = int(piece.max()) + 1
+    cell_piece = np.full(len(cells), -1)
+    cell_piece[members] = piece
     _, _, count, msd, a, b, along = _piece_ends(cells, members, piece, n)
     t_min = np.full(n, np.inf)
     np.minimum.at(t_min, piece, along)
@@ -1236,8 +1289,9 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
     # cells is as tall as the sensor can tell, like one that reaches the top beam.
     cut_above = in_half_of_its_cells(cells.cut_above)
     solid = length >= config.solid_length_m
-    ok = (count >= np.where(solid, config.solid_min_points, config.min_points)) & (length >= config.min_length_m)
-    ok &= np.sqrt(msd) <= config.max_rms_m
+    passed = {"points": count >= np.where(solid, config.solid_min_points, config.min_points),
+              "length": length >= config.min_length_m,
+              "rms": np.sqrt(msd) <= config.max_rms_m}
     # A long piece that stops the top beam may be seen over a narrow band (a hedge in front, an
     # uphill street under the beam): it is higher than the beam there, which is above cars.
     seen_to_top = solid & reaches_top
@@ -1249,15 +1303,14 @@ def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig
         np.minimum.at(piece_spacing, piece, spacing)
         one_ring = (length >= config.one_ring_min_length_m) & (piece_spacing >= config.min_span_m) & (top >= config.tall_m)
         min_span = np.where(one_ring, 0.0, min_span)
-    ok &= top - bottom >= min_span
-    ok &= top >= np.where(seen_to_top, config.cell_min_top_m, config.min_top_m)
-    ok &= (floats <= np.where(solid, np.inf, config.short_max_bottom_m)) | hidden_below
-    ok &= (reaches_top | cut_above | (top >= config.tall_m)
-           | ((length >= config.long_m) & (top >= config.long_min_top_m)))
-    ok &= ~(floating_short & (length < config.long_m))
-    ok &= ~(trunk & (length < config.solid_length_m))
-    out[members] = np.where(ok[piece], piece, -1)
-    return out
+    passed["span"] = top - bottom >= min_span
+    passed["top"] = top >= np.where(seen_to_top, config.cell_min_top_m, config.min_top_m)
+    passed["reaches_down"] = (floats <= np.where(solid, np.inf, config.short_max_bottom_m)) | hidden_below
+    passed["tall"] = (reaches_top | cut_above | (top >= config.tall_m)
+                      | ((length >= config.long_m) & (top >= config.long_min_top_m)))
+    passed["not_crown_underside"] = ~(floating_short & (length < config.long_m))
+    passed["not_trunk"] = ~(trunk & (length < config.solid_length_m))
+    return PieceTests(a=a, b=b, passed=passed, cell_piece=cell_piece)
 
 
 def _settled_cells(cells: Cells, members: np.ndarray, spacing: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
@@ -1711,40 +1764,73 @@ def _points_behind(cells: Cells, a: np.ndarray, b: np.ndarray, config: VerticalS
 
 def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfig,
                   azimuth_step_deg: float | None = None) -> ScanSegments:
-    """The pieces that pass the final tests (returns, length, spread, thinness, opacity, not seen
-    edge-on, not two columns with nothing between, spread against the scan's long walls) as segments
-    (in the frame of ``measures``). ``azimuth_step_deg``: the scan's (None: not measured; the column
-    test then takes ``link_azimuth_deg / link_azimuth_steps``)."""
+    """The pieces that pass the final tests (:func:`final_tests`) as segments (in the frame of
+    ``measures``). ``azimuth_step_deg``: the scan's (None: not measured; the column test then takes
+    ``link_azimuth_deg / link_azimuth_steps``)."""
     if measures is None:
         return ScanSegments.empty()
+    return kept_segments(measures, final_tests(measures, config, azimuth_step_deg))
+
+
+def kept_pieces(measures: PieceMeasures, tests: PieceTests) -> np.ndarray:
+    """(K,) the rows of ``measures`` that pass every one of the final ``tests``, sorted by first end (x, then y)."""
+    sel = np.flatnonzero(tests.kept)
+    return sel[np.lexsort((measures.a[sel, 1], measures.a[sel, 0]))]
+
+
+def kept_segments(measures: PieceMeasures, tests: PieceTests) -> ScanSegments:
+    """The pieces of ``measures`` that pass every one of the final ``tests``, as segments (:func:`kept_pieces`)."""
+    m = measures
+    sel = kept_pieces(measures, tests)
+    if len(sel) == 0:
+        return ScanSegments.empty()
+    return ScanSegments(segments=np.column_stack([m.a[sel], m.b[sel]]), z_mean=m.z_mean[sel],
+                        n_points=m.n_points[sel].astype(np.int64), z_min=m.z_min[sel], z_max=m.z_max[sel],
+                        rms=m.rms[sel], max_gap=m.max_gap[sel])
+
+
+def final_tests(measures: PieceMeasures | None, config: VerticalStructureConfig,
+                azimuth_step_deg: float | None = None) -> PieceTests:
+    """The final tests on the pieces' returns (``measures``; None: no piece), in order: enough returns
+    (``points``), ``length``, spread (``rms``), thinness (``core``), opacity (``behind``), not seen edge-on
+    (``incidence``); with the scan's azimuth step (``azimuth_step_deg``, None: not measured, see
+    :func:`wall_segments`), not two columns with nothing between (``two_columns``), straight when seen in
+    one or two columns (``column_curve``), and, for pieces whose returns leave gaps (``sparse_pieces``),
+    straight in each column (``sparse_curve``), on one line (``sparse_offset``) and hiding what is behind
+    them (``sparse_through``); then spread against the scan's long walls (``typical_spread``) and, for the
+    sparse ones, against its range noise (``sparse_noise_curve``). A test that is off passes every piece."""
+    if measures is None:
+        return PieceTests.empty()
     m = measures
     solid = m.length >= config.solid_length_m
-    wall = (m.count >= np.where(solid, config.solid_min_points, config.min_points)) & (m.length >= config.min_length_m)
-    wall &= m.rms <= config.max_rms_m
-    wall &= m.core >= config.min_core_fraction
-    wall &= m.behind <= config.max_behind
+    passed = {"points": m.count >= np.where(solid, config.solid_min_points, config.min_points),
+              "length": m.length >= config.min_length_m,
+              "rms": m.rms <= config.max_rms_m,
+              "core": m.core >= config.min_core_fraction,
+              "behind": m.behind <= config.max_behind}
     mid = (m.a + m.b) / 2
     along_ray = np.abs(((m.b - m.a) * mid).sum(1)) / np.maximum(m.length * np.hypot(mid[:, 0], mid[:, 1]), 1e-9)
-    wall &= along_ray <= np.sin(np.deg2rad(config.max_incidence_deg))
+    passed["incidence"] = along_ray <= np.sin(np.deg2rad(config.max_incidence_deg))
     if azimuth_step_deg is None:
         azimuth_step_deg = _configured_step_deg(config)
-    sparse = np.zeros(len(wall), bool)
+    sparse = np.zeros(len(m.a), bool)
     if azimuth_step_deg:
         two_columns = _few_columns(m.a, m.b, azimuth_step_deg, config)
-        wall &= ~(two_columns & (m.max_gap > config.max_gap_m))
+        passed["two_columns"] = ~(two_columns & (m.max_gap > config.max_gap_m))
         # Seen in one or two columns, a wall is where their slanted sheets of beams cut it: straight
         # lines in height and azimuth. A tree crown seen from afar curves (its depth follows its round).
-        wall &= ~(two_columns & (m.column_curve > config.max_column_curve_m))
+        passed["column_curve"] = ~(two_columns & (m.column_curve > config.max_column_curve_m))
         # Seen in columns metres apart (a far wall at grazing incidence), each column is such a line, and
         # the columns lie on one: a row of trees or parked cars seen that obliquely is neither.
         sparse = sparse_pieces(m.a, m.b, m.max_gap, azimuth_step_deg, config)
         if m.sparse_curve is not None and config.sparse_curve_factor > 0:
-            wall &= ~(sparse & (m.sparse_curve > config.max_column_curve_m))
+            passed["sparse_curve"] = ~(sparse & (m.sparse_curve > config.max_column_curve_m))
         if m.sparse_offset is not None and config.sparse_offset_factor > 0:
-            wall &= ~(sparse & (m.sparse_offset > config.sparse_offset_factor * m.sparse_within
-                                + config.sparse_offset_floor_m))
+            passed["sparse_offset"] = ~(sparse & (m.sparse_offset > config.sparse_offset_factor * m.sparse_within
+                                                  + config.sparse_offset_floor_m))
         if m.through is not None and config.sparse_max_through > 0:
-            wall &= ~(sparse & (m.through > config.sparse_max_through))
+            passed["sparse_through"] = ~(sparse & (m.through > config.sparse_max_through))
+    wall = PieceTests(a=m.a, b=m.b, passed=passed).kept        # (the tests so far)
     # A piece must be about as thin as this scan's long walls are (not those joined from single columns:
     # seen at grazing incidence, their range noise lies along the wall). A wall's returns scatter across it
     # by the range noise times the cosine of their incidence, so the long walls that set a long piece's bar
@@ -1759,21 +1845,16 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
     if typical_of.sum() >= 3:
         typical = float(np.median(m.rms[typical_of]))
         typical_solid = float(np.median(m.rms[noise_of])) if noise_of.sum() >= 3 else typical
-        wall &= m.rms <= np.where(solid, config.solid_rms_factor * typical_solid, config.short_rms_factor * typical)
+        passed["typical_spread"] = m.rms <= np.where(solid, config.solid_rms_factor * typical_solid,
+                                                     config.short_rms_factor * typical)
         if m.sparse_curve is not None and config.sparse_curve_factor > 0 and azimuth_step_deg:
             # A column's returns lie along its ray, so they scatter along the wall by the range noise: the
             # scan's range noise is its long walls' spread over the cosine of their incidence (those
             # within NOISE_MAX_INCIDENCE_DEG of head-on: an oblique wall's spread would underrate it).
             if noise_of.sum() >= 3:
                 noise = float(np.median(m.rms[noise_of] / cos_incidence[noise_of]))
-                wall &= ~(sparse & (m.sparse_curve > config.sparse_curve_factor * noise))
-    sel = np.flatnonzero(wall)
-    if len(sel) == 0:
-        return ScanSegments.empty()
-    sel = sel[np.lexsort((m.a[sel, 1], m.a[sel, 0]))]
-    return ScanSegments(segments=np.column_stack([m.a[sel], m.b[sel]]), z_mean=m.z_mean[sel],
-                        n_points=m.n_points[sel].astype(np.int64), z_min=m.z_min[sel], z_max=m.z_max[sel],
-                        rms=m.rms[sel], max_gap=m.max_gap[sel])
+                passed["sparse_noise_curve"] = ~(sparse & (m.sparse_curve > config.sparse_curve_factor * noise))
+    return PieceTests(a=m.a, b=m.b, passed=passed)
 
 
 # --- stage 8: walls hidden above --------------------------------------------------------------------------
@@ -2019,7 +2100,7 @@ def _hidden_above(xyz: np.ndarray, end: np.ndarray, point: np.ndarray, ends: np.
 # --- the extractor --------------------------------------------------------------------------------------
 
 def extract_vertical_structure(points, config: VerticalStructureConfig = VerticalStructureConfig(),
-                               timings: dict[str, float] | None = None) -> ScanSegments:
+                               timings: dict[str, float] | None = None, trace: dict | None = None) -> ScanSegments:
     """Wall segments of one scan from its vertical structure (see the module docstring).
 
     Args:
@@ -2027,6 +2108,13 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
         config: extraction parameters.
         timings: if given, seconds spent per stage are added to it (crop, ground, cells, lines,
             pieces, walls).
+        trace: if given, why each piece was kept or dropped is put in it (the result is the same):
+            ``"height"`` the :class:`PieceTests` of the pieces of cells (:func:`height_tests`), ``"final"``
+            those of the pieces that passed them, on their returns (:func:`final_tests`), ``"measures"``
+            the :class:`PieceMeasures` of the latter, ``"xyz"`` the (M, 3) returns above the ground and
+            ``"config"`` the parameters with the scan's measured sampling, all in the levelled frame whose
+            rotation from the velodyne frame is ``"rotation"`` (3, 3) (``x_levelled = R @ x_velodyne``).
+            Stays empty when the scan has too few returns for any piece.
     Returns:
         ScanSegments in the velodyne frame, sorted by first endpoint (possibly empty).
     Raises:
@@ -2074,11 +2162,17 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
     label, chain = cell_pieces(cells, group, config)
     clock.lap("pieces")
     stray = stray_cells(cells, label, config)
-    label = tall_pieces(cells, label, config)
+    heights = height_tests(cells, label, config)
+    label = kept_cells(heights)
     chain &= label >= 0                  # (a rejoined stray cell from a chain of columns does not make its new piece one)
     label = rejoin_corner_cells(cells, label, stray, config)
     lean = config.max_lean_deg if R is not None else None
-    result = wall_segments(piece_measures(xyz, height, cells, label, config, lean, chain), config, step)
+    measures = piece_measures(xyz, height, cells, label, config, lean, chain)
+    finals = final_tests(measures, config, step)
+    if trace is not None:
+        trace.update(height=heights, final=finals, measures=measures, xyz=xyz, config=config,
+                     rotation=np.eye(3) if R is None else R)
+    result = ScanSegments.empty() if measures is None else kept_segments(measures, finals)
     result = extend_hidden_ends(result, xyz, height, config)
     result = replace(result, support_points=cells.centroid)
     if R is not None:

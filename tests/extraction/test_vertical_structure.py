@@ -71,6 +71,39 @@ def test_fences_cars_vans_and_trees_are_not_walls():
         assert on_line(seg, [30, -25], [30, 25], 0.1), seg
 
 
+def test_the_trace_names_the_tests_a_fence_fails_and_changes_no_result():
+    objects = [building(30, -25, 45, 25, 12.0),
+               {"kind": "fence", "line": [[8, 3], [8, 15]], "height": 1.4},
+               {"kind": "car", "position": [11, -12], "heading_deg": 0, "size": [5.0, 2.0, 2.1]}]   # a van
+    scan = cast_scan(objects)
+    trace: dict = {}
+    traced = extract_vertical_structure(scan, trace=trace)
+    plain = extract_vertical_structure(scan)
+    np.testing.assert_array_equal(traced.segments, plain.segments)
+    heights, finals = trace["height"], trace["final"]
+
+    def piece_on(tests, p, q):
+        on = [k for k in range(len(tests.a)) if on_line(np.r_[tests.a[k], tests.b[k]], p, q, 0.3)
+              and np.hypot(*(tests.b[k] - tests.a[k])) > 3]
+        assert len(on) == 1, on
+        return on[0]
+
+    assert heights.failed(piece_on(heights, [8, 3], [8, 15])) == ["top", "tall"]     # 1.4 m: low, and not tall
+    assert "tall" in heights.failed(piece_on(heights, [8.6, -11], [13.4, -11]))      # the van's side
+    assert heights.failed(piece_on(heights, [30, -25], [30, 25])) == []
+    assert finals.failed(piece_on(finals, [30, -25], [30, 25])) == []
+    assert finals.kept.sum() == len(plain) == 1
+    assert list(heights.passed) == ["points", "length", "rms", "span", "top", "reaches_down", "tall",
+                                    "not_crown_underside", "not_trunk"]
+    assert trace["xyz"].shape[1] == 3 and trace["rotation"].shape == (3, 3)
+
+
+def test_the_trace_stays_empty_when_a_scan_has_too_few_returns():
+    trace: dict = {}
+    assert len(extract_vertical_structure(np.array([[10.0, 0.0, 0.5]] * 5), trace=trace)) == 0
+    assert trace == {}
+
+
 def test_corner_of_a_building_gives_two_segments_meeting_at_it():
     result = extract_vertical_structure(cast_scan([building(15, 5, 25, 15)]))
     assert len(result) == 2
