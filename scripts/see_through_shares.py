@@ -47,35 +47,22 @@ THRESHOLDS = (0.05, 0.1, 0.2, 0.3, 0.4, 0.5)
 
 
 def extract_with_shares(points: np.ndarray, config) -> tuple:
-    """The scan's segments (sensor frame), (K,) the see-through share of each, measured as the
-    extractor measures its pieces (levelled frame, each piece's height range, the scan's azimuth step):
-    :func:`vertical_structure.piece_measures` and :func:`vertical_structure.wall_segments` are wrapped to
-    keep what they see; and (K,) True for the sparse ones (gaps longer than ``max_gap_m``, spanning at
-    least ``min_azimuth_steps``: those ``sparse_max_through`` asks)."""
-    seen: dict = {}
-    piece_measures, wall_segments = vs.piece_measures, vs.wall_segments
-
-    def keep_points(xyz, height, cells, label, config, *rest, **kw):
-        seen["xyz"], seen["config"], seen["step"] = xyz, config, vs._configured_step_deg(config)
-        seen["measures"] = piece_measures(xyz, height, cells, label, config, *rest, **kw)
-        return seen["measures"]
-
-    def keep_walls(measures, config, step=None):
-        seen["walls"] = wall_segments(measures, config, step)
-        return seen["walls"]
-
-    vs.piece_measures, vs.wall_segments = keep_points, keep_walls
-    try:
-        found = vs.extract_vertical_structure(points, config)
-    finally:
-        vs.piece_measures, vs.wall_segments = piece_measures, wall_segments
-    if len(found) == 0 or seen.get("step") is None:
-        return found, np.zeros(len(found)), np.zeros(len(found), bool)
-    m, walls, step = seen["measures"], seen["walls"].segments, seen["step"]
-    index = [int(np.flatnonzero((m.a == w[:2]).all(1) & (m.b == w[2:]).all(1))[0]) for w in walls]
+    """The scan's walls as the final tests passed them (sensor frame; before ``extend_hidden_m`` moves
+    their ends and joins some, so one share per piece the tests judged), (K,) the see-through share of
+    each, measured as the extractor measures its pieces (levelled frame, each piece's height range, the
+    scan's azimuth step, from the extraction's ``trace``); and (K,) True for the sparse ones (gaps longer
+    than ``max_gap_m``, spanning at least ``min_azimuth_steps``: those ``sparse_max_through`` asks)."""
+    trace: dict = {}
+    vs.extract_vertical_structure(points, config, trace=trace)
+    step = vs._configured_step_deg(trace["config"]) if trace else None
+    index = vs.kept_pieces(trace["measures"], trace["final"]) if trace and trace["measures"] is not None else []
+    if len(index) == 0 or step is None:
+        return vs.ScanSegments.empty(), np.zeros(0), np.zeros(0, bool)
+    m = trace["measures"]
+    pieces = vs.unlevel_segments(vs.kept_segments(m, trace["final"]), trace["rotation"])
     a, b = m.a[index], m.b[index]
-    sparse = vs.sparse_pieces(a, b, m.max_gap[index], step, seen["config"])
-    return found, vs.seen_through(seen["xyz"], a, b, m.z_min[index], m.z_max[index], np.deg2rad(step)), sparse
+    sparse = vs.sparse_pieces(a, b, m.max_gap[index], step, trace["config"])
+    return pieces, vs.seen_through(trace["xyz"], a, b, m.z_min[index], m.z_max[index], np.deg2rad(step)), sparse
 
 
 def on_walls(world_segments: np.ndarray, walls: np.ndarray) -> np.ndarray:
