@@ -46,11 +46,6 @@ def _point(text: str) -> np.ndarray:
     return np.array([x, y])
 
 
-def _velodyne_ends(ends: np.ndarray, rotation: np.ndarray) -> np.ndarray:
-    """(K, 2) levelled-frame ends turned back into the velodyne frame at height 0 (``x = R.T @ x_levelled``)."""
-    return (np.column_stack([ends, np.zeros(len(ends))]) @ rotation)[:, :2]
-
-
 def _distances(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(K,) distance of ``point`` (2,) from each segment a-b ((K, 2) each)."""
     d = b - a
@@ -62,7 +57,8 @@ def stage_rows(tests, rotation: np.ndarray, at: np.ndarray | None, radius: float
     """(distance, a, b, failed test names) of the pieces of one stage's ``tests`` (a
     :class:`~featmap.extraction.vertical_structure.PieceTests`) within ``radius`` of ``at`` (velodyne frame),
     nearest first; every piece when ``at`` is None."""
-    a, b = _velodyne_ends(tests.a, rotation), _velodyne_ends(tests.b, rotation)
+    segments = tests.velodyne_segments(rotation)
+    a, b = segments[:, :2], segments[:, 2:]
     dist = np.zeros(len(a)) if at is None else _distances(at, a, b)
     order = np.argsort(dist, kind="stable")
     return [(float(dist[k]), a[k], b[k], tests.failed(int(k))) for k in order if dist[k] <= radius]

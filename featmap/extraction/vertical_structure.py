@@ -1196,6 +1196,13 @@ class PieceTests:
         """The names of the tests piece ``k`` fails, in order."""
         return [name for name, passed in self.passed.items() if not passed[k]]
 
+    def velodyne_segments(self, rotation: np.ndarray) -> np.ndarray:
+        """(n, 4) the pieces' ends turned back from the levelled frame (``x_levelled = rotation @ x``) into
+        the velodyne frame at height 0: within a few centimetres of the wall's line there where the sensor
+        leans by a degree or two (a wall's line is exact at its own height, see :func:`unlevel_segments`)."""
+        ends = [(np.column_stack([e, np.zeros(len(e))]) @ rotation)[:, :2] for e in (self.a, self.b)]
+        return np.column_stack(ends)
+
     @staticmethod
     def empty(cells: int = 0) -> "PieceTests":
         """No piece (``cells`` cells, none in a piece)."""
