@@ -111,6 +111,19 @@ def _shortened(line: ListedLine, by: float) -> np.ndarray:
     return np.concatenate([line.p + cut * u, line.q - cut * u])
 
 
+def _share_on(pts: np.ndarray, direction: np.ndarray, line: ListedLine, tolerance_m: float) -> float:
+    """The share of a segment's samples ``pts`` (S, 2) (direction (2,)) that lie on the listed ``line``."""
+    ok, _ = lies_on(pts, np.tile(direction, (len(pts), 1)), line.segment, tolerance_m, ANGLE_DEG)
+    return float(ok.mean())
+
+
+def lying_on(segments: np.ndarray, line: ListedLine, tolerance_m: float = 0.5) -> np.ndarray:
+    """(K,) True for the (K, 4) ``segments`` that lie on the listed ``line`` (at least half of each, as
+    :func:`score_wall_list` places a segment on a wall)."""
+    segments = np.asarray(segments, float).reshape(-1, 4)
+    return np.array([_share_on(*_samples(seg), line, tolerance_m) >= 0.5 for seg in segments], dtype=bool)
+
+
 def score_wall_list(segments: np.ndarray, wall_list: ScanWallList, tolerance_m: float = 0.5,
                     min_coverage: float = 0.9) -> WallListScore:
     """Score (K, 4) segments (the scan's frame) against ``wall_list``; see the module docstring."""
@@ -130,9 +143,9 @@ def score_wall_list(segments: np.ndarray, wall_list: ScanWallList, tolerance_m: 
         pts, direction = _samples(seg)
         best = 0.0
         for w, line in enumerate(listed):
-            ok, _ = lies_on(pts, np.tile(direction, (len(pts), 1)), line.segment, tolerance_m, ANGLE_DEG)
-            if ok.mean() >= 0.5 and ok.mean() > best:
-                best, on_wall[k] = ok.mean(), w
+            share = _share_on(pts, direction, line, tolerance_m)
+            if share >= 0.5 and share > best:
+                best, on_wall[k] = share, w
         if on_wall[k] >= 0:
             status[k] = "wall" if on_wall[k] < len(wall_list.walls) else "optional"
             continue

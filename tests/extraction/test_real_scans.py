@@ -92,3 +92,18 @@ def test_exponent_numbers_in_a_wall_list_are_numbers(tmp_path):
     lists = read_wall_lists(path)
     scan = lists.scans["drive/0000000000.bin"]
     assert (scan.max_unlisted, lists.tolerance_m, list(scan.walls[0].q)) == (10, 0.5, [10.0, 5.0])
+
+
+def test_a_segment_lies_on_a_listed_wall_when_half_of_it_does():
+    import numpy as np
+
+    from featmap.evaluation.wall_lists import ListedLine, lying_on
+
+    line = ListedLine("front", np.array([0.0, 5.0]), np.array([10.0, 5.0]))
+    segments = [[2, 5.2, 8, 5.2],        # along it, 0.2 m off
+                [7, 5.0, 14, 5.0],       # 3.5 m of 7 m within its extent and 0.5 m of its end
+                [8, 5.0, 14, 5.0],       # 2.5 m of 6 m
+                [5, 5.8, 9, 5.8],        # 0.8 m off
+                [2, 4.0, 2, 6.0]]        # across it
+    assert lying_on(segments, line, 0.5).tolist() == [True, True, False, False, False]
+    assert lying_on(np.zeros((0, 4)), line).tolist() == []
