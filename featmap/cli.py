@@ -225,6 +225,81 @@ def run(
         pipeline.run(scan_source, out or Path("runs") / scan_source.name)
 
 
+def _point(text: str, flag: str) -> tuple[float, float]:
+    """``X,Y`` as two finite numbers, or a one-line error naming ``flag``."""
+    import math
+
+    try:
+        x, y = (float(v) for v in text.split(","))
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise ValueError
+    except ValueError:
+        _fail(f"{flag} {text!r}: expected X,Y in metres, e.g. {flag} 9.5,20.2")
+    return x, y
+
+
+@command
+def explain(
+    scan: Optional[Path] = typer.Argument(None, help="A KITTI velodyne .bin scan; or name a source with the flags of featmap run, and --frame."),
+    frame: int = typer.Option(0, "--frame", min=0, help="Which frame of the source (0 = its first)."),
+    at: Optional[str] = typer.Option(None, "--at", help="X,Y (velodyne frame, metres): list the pieces near this point, with the tests each fails."),
+    radius: float = typer.Option(2.0, "--radius", min=0.0, help="... within this distance of it (metres)."),
+    drive: Optional[str] = typer.Option(None, "--drive", "-d", help="KITTI raw drive YYYY_MM_DD_drive_NNNN (with --data-dir)."),
+    data_dir: Optional[Path] = typer.Option(None, "--data-dir", help="KITTI raw root holding YYYY_MM_DD/ folders (with --drive; default data/kitti)."),
+    world: Optional[str] = typer.Option(None, "--world", "-w", help="A simulated world (built-in name or file); the default is residential."),
+    dataset: Optional[str] = typer.Option(None, "--dataset", help="Any registered 3D scan format (see featmap datasets), with --source."),
+    source: Optional[str] = typer.Option(None, "--source", help="Location of the --dataset source (a folder or file)."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+):
+    """Why the wall extraction kept or dropped the pieces of one scan: the tests each piece fails (3D scans,
+    extraction.method_3d vertical_structure)."""
+    from featmap.extraction.explain import STAGES, explain_scan
+    from featmap.pipeline import load_config
+
+    point = None if at is None else _point(at, "--at")
+    cfg = load_config(config, set_ or [])
+    if cfg.extraction.method_3d != "vertical_structure":
+        _fail(f"extraction.method_3d={cfg.extraction.method_3d}: explain names the tests of vertical_structure only")
+    reporter = _reporter()
+    if scan is not None:
+        if any((drive, world, dataset, source)):
+            _fail(f"{scan}: give a scan file or a source (--drive, --world, --dataset), not both")
+        from featmap.io.kitti_raw import read_velo_bin
+
+        points, name = read_velo_bin(scan), str(scan)
+    else:
+        from featmap.datasets import open_source
+
+        spec = source_spec(drive, data_dir, world, dataset, source, None, None, False)
+        scan_source = open_source(spec, reporter)
+        if scan_source.dimension != 3:
+            _fail(f"{spec.location}: a {scan_source.dimension}D source; explain covers 3D scans")
+        if frame >= len(scan_source):
+            _fail(f"--frame {frame}: {scan_source.name} has {len(scan_source)} frames (0-{len(scan_source) - 1})")
+        points, name = scan_source[frame].points, f"{scan_source.name} frame {frame}"
+    explanation = explain_scan(points, cfg.extraction.vertical_structure)
+    reporter.info(f"{name}: {len(points):,} points, {len(explanation.result)} wall segment(s)")
+    if not explanation.stages:
+        reporter.info("too few returns above the ground for any piece")
+        return
+    titles = {"height": "height tests, on the pieces of cells",
+              "final": "final tests, on the returns of the pieces that passed the height tests"}
+    if point is None:
+        for stage in STAGES:
+            kept = int(explanation.stages[stage].kept.sum())
+            reporter.table(f"{titles[stage]}: {len(explanation.stages[stage].a)} piece(s), {kept} kept",
+                           ["test", "pieces failing it"],
+                           [[test, str(count)] for test, count in explanation.failure_counts(stage).items()])
+        return
+    near = explanation.near(point, radius)
+    for stage in STAGES:
+        rows = [[f"{v.distance_m:.2f}", f"{v.segment[0]:.2f}, {v.segment[1]:.2f}", f"{v.segment[2]:.2f}, {v.segment[3]:.2f}",
+                 f"{v.length_m:.2f}", ", ".join(v.failed) or "nothing (kept)"] for v in near if v.stage == stage]
+        reporter.table(f"{titles[stage]}: {len(rows)} within {radius:g} m of {point[0]:g},{point[1]:g}",
+                       ["distance m", "from", "to", "length m", "fails"], rows)
+
+
 @command
 def datasets():
     """List the scan formats featmap reads (for run --dataset NAME --source LOCATION)."""

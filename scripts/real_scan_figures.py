@@ -26,7 +26,7 @@ import numpy as np
 
 from featmap.errors import FeatmapError
 from featmap.extraction import extract_scan
-from featmap.extraction.vertical_structure import extract_vertical_structure
+from featmap.extraction.explain import explain_scan
 from featmap.io.atomic import atomic_write_text
 from featmap.io.kitti_raw import read_velo_bin
 from featmap.evaluation.wall_lists import lying_on, read_wall_lists, score_wall_list
@@ -54,16 +54,16 @@ MIN_PIECE_M = 0.5
 """Pieces shorter than this are left out of why a wall was missed (a wall's edges leave many tiny ones)."""
 
 
-def why_missed(trace: dict, line, tolerance_m: float, most: int = 3) -> str:
-    """What the extractor's tests (``trace`` of :func:`extract_vertical_structure`) said about the pieces lying
-    on a missed listed ``line``: the ``most`` longest at least ``MIN_PIECE_M`` long that failed a test, each
-    with its length and the tests it failed (at the height stage, or at the final stage after passing it)."""
-    if not trace:
+def why_missed(explanation, line, tolerance_m: float, most: int = 3) -> str:
+    """What the extractor's tests said about the pieces lying on a missed listed ``line`` (an
+    :class:`~featmap.extraction.explain.ScanExplanation` of the scan): the ``most`` longest at least
+    ``MIN_PIECE_M`` long that failed a test, each with its length and the tests it failed (at the height
+    stage, or at the final stage after passing it)."""
+    if not explanation.stages:
         return "no piece"
     found = []
     for stage, suffix in (("height", ""), ("final", " (final tests)")):
-        tests = trace[stage]
-        segments = tests.velodyne_segments(trace["rotation"])
+        tests, segments = explanation.stages[stage], explanation.segments(stage)
         length = np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
         for k in np.flatnonzero(lying_on(segments, line, tolerance_m) & (length >= MIN_PIECE_M) & ~tests.kept):
             found.append((float(length[k]), f"{length[k]:.1f} m: {', '.join(tests.failed(int(k)))}{suffix}"))
@@ -92,9 +92,9 @@ def _run(args) -> int:
     rows = []
     for scan, wall_list in lists.scans.items():
         points = clouds[scan]
-        trace: dict = {}                                      # warm-up (imports), not timed; why walls were missed
+        explanation = None                                    # warm-up (imports), not timed; why walls were missed
         if config.extraction.method_3d == "vertical_structure":
-            extract_vertical_structure(points, config.extraction.vertical_structure, trace=trace)
+            explanation = explain_scan(points, config.extraction.vertical_structure)
         else:
             extract_scan(points, 3, config.extraction)
         times = []
@@ -112,7 +112,7 @@ def _run(args) -> int:
         fig.tight_layout()
         fig.savefig(figures / f"{name}.png", dpi=110)
         plt.close(fig)
-        missed = [f"{w.name} ({c:.2f} covered{'; ' + why_missed(trace, w, lists.tolerance_m) if trace else ''})"
+        missed = [f"{w.name} ({c:.2f} covered{'; ' + why_missed(explanation, w, lists.tolerance_m) if explanation is not None else ''})"
                   for w, f, c in zip(wall_list.walls, score.found, score.coverage) if not f]
         rows.append((scan, len(points), len(result), int(score.found.sum()), len(score.found), score.n_clutter,
                      score.n_unlisted, ms, "; ".join(missed)))
@@ -130,7 +130,7 @@ def _run(args) -> int:
             "`tests/extraction/real_scan_walls.yaml`. A wall is found when segments cover >= 90 % of it "
             "(endpoints within 0.5 m). Times are medians of 5 extractions in one process on a shared 2-core machine. "
             "After a missed wall: the longest pieces (at least 0.5 m) lying on it that the extractor dropped, with the "
-            "tests each failed (`scripts/explain_extraction.py` names them: the height tests, then the final tests).\n\n"
+            "tests each failed (`featmap explain` names them: the height tests, then the final tests).\n\n"
             + "<!-- table:real_scans -->\n" + table + "<!-- /table -->\n\n" + "".join(f"![{Path(r[0]).stem}]({link}{Path(r[0]).stem}.png)\n" for r in rows))
     atomic_write_text(page, text)
     return 0

@@ -56,15 +56,14 @@ def test_why_a_wall_was_missed_names_the_tests_its_pieces_failed(script):
     import numpy as np
 
     from featmap.evaluation.wall_lists import ListedLine
-    from featmap.extraction.vertical_structure import extract_vertical_structure
+    from featmap.extraction.explain import explain_scan
     from tests.extraction.test_vertical_structure import building, cast_scan
 
     scan = cast_scan([building(30, -25, 45, 25, 12.0), {"kind": "fence", "line": [[8, 3], [8, 15]], "height": 1.4}])
-    trace: dict = {}
-    extract_vertical_structure(scan, trace=trace)
+    explanation = explain_scan(scan)
     fence = ListedLine("fence", np.array([8.0, 3.0]), np.array([8.0, 15.0]))
-    why = script.why_missed(trace, fence, 0.5)
+    why = script.why_missed(explanation, fence, 0.5)
     assert why.split("; ")[0].endswith(" m: top, tall") and float(why.split(" m:")[0]) > 10
     front = ListedLine("front", np.array([30.0, -25.0]), np.array([30.0, 25.0]))
-    assert script.why_missed(trace, front, 0.5) == "no dropped piece of 0.5 m or more"       # found, not dropped
-    assert script.why_missed({}, fence, 0.5) == "no piece"
+    assert script.why_missed(explanation, front, 0.5) == "no dropped piece of 0.5 m or more"       # found, not dropped
+    assert script.why_missed(explain_scan(np.array([[10.0, 0.0, 0.5]] * 5)), fence, 0.5) == "no piece"
