@@ -1204,19 +1204,15 @@ class PieceTests:
         return np.column_stack(ends)
 
     @staticmethod
-    def empty(cells: int = 0) -> "PieceTests":
-        """No piece (``cells`` cells, none in a piece)."""
-        return PieceTests(a=np.zeros((0, 2)), b=np.zeros((0, 2)), passed={}, cell_piece=np.full(cells, -1))
-
-
-def tall_pieces(cells: Cells, label: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
-    """(C,) piece label of the cells of pieces that pass every test but the final per-point ones (the
-    height tests, :func:`height_tests`); -1 = none."""
-    return kept_cells(height_tests(cells, label, config))
+    def empty(cells: int | None = None) -> "PieceTests":
+        """No piece (of ``cells`` cells, none in a piece; None: the final tests, made on no cells)."""
+        return PieceTests(a=np.zeros((0, 2)), b=np.zeros((0, 2)), passed={},
+                          cell_piece=None if cells is None else np.full(cells, -1))
 
 
 def kept_cells(tests: PieceTests) -> np.ndarray:
-    """(C,) the piece label of each cell whose piece passes every one of the height ``tests``; -1 = none."""
+    """(C,) the piece label of each cell whose piece passes every one of the height ``tests``
+    (:func:`height_tests`); -1 = none."""
     piece = tests.cell_piece
     keep = piece >= 0
     keep[keep] = tests.kept[piece[keep]]
@@ -1774,8 +1770,6 @@ def wall_segments(measures: PieceMeasures | None, config: VerticalStructureConfi
     """The pieces that pass the final tests (:func:`final_tests`) as segments (in the frame of
     ``measures``). ``azimuth_step_deg``: the scan's (None: not measured; the column test then takes
     ``link_azimuth_deg / link_azimuth_steps``)."""
-    if measures is None:
-        return ScanSegments.empty()
     return kept_segments(measures, final_tests(measures, config, azimuth_step_deg))
 
 
@@ -1785,8 +1779,11 @@ def kept_pieces(measures: PieceMeasures, tests: PieceTests) -> np.ndarray:
     return sel[np.lexsort((measures.a[sel, 1], measures.a[sel, 0]))]
 
 
-def kept_segments(measures: PieceMeasures, tests: PieceTests) -> ScanSegments:
-    """The pieces of ``measures`` that pass every one of the final ``tests``, as segments (:func:`kept_pieces`)."""
+def kept_segments(measures: PieceMeasures | None, tests: PieceTests) -> ScanSegments:
+    """The pieces of ``measures`` (None: no piece) that pass every one of the final ``tests``, as segments
+    (:func:`kept_pieces`)."""
+    if measures is None:
+        return ScanSegments.empty()
     m = measures
     sel = kept_pieces(measures, tests)
     if len(sel) == 0:
@@ -1837,7 +1834,7 @@ def final_tests(measures: PieceMeasures | None, config: VerticalStructureConfig,
                                                   + config.sparse_offset_floor_m))
         if m.through is not None and config.sparse_max_through > 0:
             passed["sparse_through"] = ~(sparse & (m.through > config.sparse_max_through))
-    wall = PieceTests(a=m.a, b=m.b, passed=passed).kept        # (the tests so far)
+    wall = np.logical_and.reduce(list(passed.values()))     # (the tests so far)
     # A piece must be about as thin as this scan's long walls are (not those joined from single columns:
     # seen at grazing incidence, their range noise lies along the wall). A wall's returns scatter across it
     # by the range noise times the cosine of their incidence, so the long walls that set a long piece's bar
@@ -2179,7 +2176,7 @@ def extract_vertical_structure(points, config: VerticalStructureConfig = Vertica
     if trace is not None:
         trace.update(height=heights, final=finals, measures=measures, xyz=xyz, config=config,
                      rotation=np.eye(3) if R is None else R)
-    result = ScanSegments.empty() if measures is None else kept_segments(measures, finals)
+    result = kept_segments(measures, finals)
     result = extend_hidden_ends(result, xyz, height, config)
     result = replace(result, support_points=cells.centroid)
     if R is not None:

@@ -197,7 +197,7 @@ def _wall_cells(centroids: np.ndarray, along_x: np.ndarray):
 
 
 FRONT, SIDE = 3, 7
-"""The labels of the two faces in ``_corner`` (labels with gaps, as ``tall_pieces`` leaves them)."""
+"""The labels of the two faces in ``_corner`` (labels with gaps, as ``kept_cells`` leaves them)."""
 
 
 def _corner(stray_xy, with_side_wall=True, side_x=0.0):
