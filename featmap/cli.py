@@ -241,7 +241,7 @@ def _point(text: str, flag: str) -> tuple[float, float]:
 @command
 def explain(
     scan: Optional[Path] = typer.Argument(None, help="A KITTI velodyne .bin scan; or name a source with the flags of featmap run, and --frame."),
-    frame: int = typer.Option(0, "--frame", min=0, help="Which frame of the source (0 = its first)."),
+    frame: Optional[int] = typer.Option(None, "--frame", min=0, help="Which frame of the source (default 0, its first)."),
     at: Optional[str] = typer.Option(None, "--at", help="X,Y (velodyne frame, metres): list the pieces near this point, with the tests each fails."),
     radius: float = typer.Option(2.0, "--radius", min=0.0, help="... within this distance of it (metres)."),
     drive: Optional[str] = typer.Option(None, "--drive", "-d", help="KITTI raw drive YYYY_MM_DD_drive_NNNN (with --data-dir)."),
@@ -263,14 +263,18 @@ def explain(
         _fail(f"extraction.method_3d={cfg.extraction.method_3d}: explain names the tests of vertical_structure only")
     reporter = _reporter()
     if scan is not None:
-        if any((drive, world, dataset, source)):
-            _fail(f"{scan}: give a scan file or a source (--drive, --world, --dataset), not both")
+        given = [flag for flag, value in (("--drive", drive), ("--data-dir", data_dir), ("--world", world),
+                                          ("--dataset", dataset), ("--source", source), ("--frame", frame))
+                 if value is not None]
+        if given:
+            _fail(f"{scan}: a scan file is one frame of no source; leave out {', '.join(given)}")
         from featmap.io.kitti_raw import read_velo_bin
 
         points, name = read_velo_bin(scan), str(scan)
     else:
         from featmap.datasets import open_source
 
+        frame = frame or 0
         spec = source_spec(drive, data_dir, world, dataset, source, None, None, False)
         scan_source = open_source(spec, reporter)
         if scan_source.dimension != 3:
