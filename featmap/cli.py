@@ -244,6 +244,7 @@ def explain(
     frame: Optional[int] = typer.Option(None, "--frame", min=0, help="Which frame of the source (default 0, its first)."),
     at: Optional[str] = typer.Option(None, "--at", help="X,Y (velodyne frame, metres): list the pieces near this point, with the tests each fails."),
     radius: float = typer.Option(2.0, "--radius", min=0.0, help="... within this distance of it (metres)."),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="Also draw the scan's pieces, coloured by the first test each failed, into this PNG (around --at when given)."),
     drive: Optional[str] = typer.Option(None, "--drive", "-d", help="KITTI raw drive YYYY_MM_DD_drive_NNNN (with --data-dir)."),
     data_dir: Optional[Path] = typer.Option(None, "--data-dir", help="KITTI raw root holding YYYY_MM_DD/ folders (with --drive; default data/kitti)."),
     world: Optional[str] = typer.Option(None, "--world", "-w", help="A simulated world (built-in name or file); the default is residential."),
@@ -284,6 +285,16 @@ def explain(
         points, name = scan_source[frame].points, f"{scan_source.name} frame {frame}"
     explanation = explain_scan(points, cfg.extraction.vertical_structure)
     reporter.info(f"{name}: {len(points):,} points, {len(explanation.result)} wall segment(s)")
+    if plot is not None:
+        from featmap.plotting.explain import plot_explanation
+        from featmap.plotting.style import new_figure, save_png
+
+        half = None if point is None else max(2 * radius, 5.0)
+        fig, ax = new_figure(size=(9, 7))
+        plot_explanation(ax, points, explanation,
+                         None if point is None else (point[0] - half, point[0] + half, point[1] - half, point[1] + half))
+        ax.set_title(f"{name}: why each piece was kept or dropped", fontsize=8)
+        reporter.info(f"wrote {save_png(fig, plot)}")
     if not explanation.stages:
         reporter.info("too few returns above the ground for any piece")
         return

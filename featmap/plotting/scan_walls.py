@@ -9,6 +9,16 @@ from featmap.plotting.style import add_scalebar, draw_segments
 STATUS_COLORS = {"wall": "#1f77b4", "optional": "#17becf", "clutter": "#d62728", "unlisted": "#9467bd"}
 
 
+def draw_scan_points(ax, points: np.ndarray) -> None:
+    """A top view of (N, >=3) velodyne-frame points: those more than 0.3 m above the scan's 5th height
+    percentile darker (a rough ground split, for the eye only)."""
+    xyz = np.asarray(points, float)[:, :3]
+    floor = np.percentile(xyz[:, 2], 5) if len(xyz) else 0.0
+    low = xyz[:, 2] < floor + 0.3
+    ax.scatter(xyz[low, 0], xyz[low, 1], s=0.05, c="0.85", lw=0, rasterized=True)
+    ax.scatter(xyz[~low, 0], xyz[~low, 1], s=0.15, c="0.45", lw=0, rasterized=True)
+
+
 def plot_scan_walls(ax, points: np.ndarray, segments: np.ndarray, wall_list, score, view: tuple[float, float, float, float] | None = None) -> None:
     """Draw a scan and its walls on ``ax``.
 
@@ -23,11 +33,7 @@ def plot_scan_walls(ax, points: np.ndarray, segments: np.ndarray, wall_list, sco
     """
     from matplotlib.patches import Rectangle
 
-    xyz = np.asarray(points, float)[:, :3]
-    floor = np.percentile(xyz[:, 2], 5) if len(xyz) else 0.0
-    low = xyz[:, 2] < floor + 0.3
-    ax.scatter(xyz[low, 0], xyz[low, 1], s=0.05, c="0.85", lw=0, rasterized=True)
-    ax.scatter(xyz[~low, 0], xyz[~low, 1], s=0.15, c="0.45", lw=0, rasterized=True)
+    draw_scan_points(ax, points)
     for (x0, x1, y0, y1) in wall_list.clutter:
         ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ec="#ff7f0e", lw=0.8, ls=":"))
     if wall_list.optional:

@@ -64,6 +64,16 @@ def test_the_command_lists_the_pieces_near_a_point_and_counts_without_one(fence_
     assert "pieces failing it" in res.output and "not_trunk" in res.output
 
 
+def test_the_command_draws_the_pieces_into_a_png(fence_scan, tmp_path):
+    path = tmp_path / "fence.bin"
+    fence_scan.astype("<f4").tofile(path)
+    png = tmp_path / "out" / "why.png"
+    res = CliRunner().invoke(app, ["explain", str(path), "--at", "8,9", "--plot", str(png)])
+    assert res.exit_code == 0, res.output
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and f"wrote {png}" in " ".join(res.output.split())
+    assert [p.name for p in png.parent.iterdir()] == ["why.png"]            # no temporary file left
+
+
 def test_the_command_explains_a_frame_of_a_drive(case1_drive):
     res = CliRunner().invoke(app, ["explain", "--drive", case1_drive.drive, "--data-dir", str(case1_drive.root),
                                    "--frame", "20"])
