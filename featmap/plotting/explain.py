@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from featmap.plotting.scan_walls import draw_scan_points
-from featmap.plotting.style import add_scalebar, draw_segments
+from featmap.plotting.scan_walls import draw_scan_points, finish_scan_view
+from featmap.plotting.style import draw_segments
 
 WALL_COLOR = "k"
 
@@ -39,15 +39,5 @@ def plot_explanation(ax, points: np.ndarray, explanation, view: tuple[float, flo
                               linestyles="-" if stage == "height" else "--", label=f"{stage}: {test} ({int(sel.sum())})")
     walls = explanation.result.segments
     draw_segments(ax, walls, WALL_COLOR, lw=2.2, label=f"walls ({len(walls)})")
-    ax.plot(0, 0, marker=(3, 0, -90), color="k", ms=7)
-    if view is None:
-        pts = np.concatenate([s.reshape(-1, 2) for s in drawn] + [walls.reshape(-1, 2), [[0.0, 0.0]]])
-        lo, hi = pts.min(0) - 5, pts.max(0) + 5
-        view = (lo[0], hi[0], lo[1], hi[1])
-    ax.set_xlim(view[0], view[1])
-    ax.set_ylim(view[2], view[3])
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m, velodyne frame)")
-    ax.set_ylabel("y (m)")
     ax.legend(loc="upper left", fontsize=6, title="first test failed (pieces in the scan)", title_fontsize=6)
-    add_scalebar(ax)
+    finish_scan_view(ax, view, np.concatenate([s.reshape(-1, 2) for s in drawn] + [walls.reshape(-1, 2)]))

@@ -46,10 +46,16 @@ def plot_scan_walls(ax, points: np.ndarray, segments: np.ndarray, wall_list, sco
         draw_segments(ax, segments, [STATUS_COLORS.get(s, "k") for s in score.status], lw=1.4)
         ends = segments.reshape(-1, 2)
         ax.plot(ends[:, 0], ends[:, 1], "|", color="k", ms=3, mew=0.6)
+    listed = [w.segment for w in wall_list.walls + wall_list.optional]
+    finish_scan_view(ax, view, np.concatenate([np.array(listed).reshape(-1, 2), segments.reshape(-1, 2)]))
+
+
+def finish_scan_view(ax, view: tuple[float, float, float, float] | None, extent: np.ndarray) -> None:
+    """The sensor at the origin, the ``view`` (x_min, x_max, y_min, y_max; None: the (K, 2) points ``extent``
+    and the sensor, plus 5 m), equal axes in metres of the velodyne frame and a scale bar."""
     ax.plot(0, 0, marker=(3, 0, -90), color="k", ms=7)
     if view is None:
-        listed = [w.segment for w in wall_list.walls + wall_list.optional]
-        pts = np.concatenate([np.array(listed).reshape(-1, 2), segments.reshape(-1, 2), [[0.0, 0.0]]])
+        pts = np.concatenate([np.asarray(extent, float).reshape(-1, 2), [[0.0, 0.0]]])
         lo, hi = pts.min(0) - 5, pts.max(0) + 5
         view = (lo[0], hi[0], lo[1], hi[1])
     ax.set_xlim(view[0], view[1])
