@@ -310,9 +310,10 @@ def explain(
     near = explanation.near(point, radius)
     for stage in STAGES:
         rows = [[f"{v.distance_m:.2f}", f"{v.segment[0]:.2f}, {v.segment[1]:.2f}", f"{v.segment[2]:.2f}, {v.segment[3]:.2f}",
-                 f"{v.length_m:.2f}", ", ".join(v.failed) or "nothing (kept)"] for v in near if v.stage == stage]
+                 f"{v.length_m:.2f}", ", ".join(v.failed) or "nothing (kept)", v.measured_text()]
+                for v in near if v.stage == stage]
         reporter.table(f"{titles[stage]}: {len(rows)} within {radius:g} m of {point[0]:g},{point[1]:g}",
-                       ["distance m", "from", "to", "length m", "fails"], rows)
+                       ["distance m", "from", "to", "length m", "fails", "measured"], rows)
 
 
 @command

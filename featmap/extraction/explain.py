@@ -24,12 +24,20 @@ STAGES = ("height", "final")
 class PieceVerdict:
     """One piece of one stage: ``segment`` (4,) its ends in the velodyne frame (metres, see
     :meth:`PieceTests.velodyne_segments`), ``failed`` the tests it fails (empty: it passed that stage),
-    ``distance_m`` from the point it was looked up by."""
+    ``distance_m`` from the point it was looked up by, ``measured`` some of what the tests looked at
+    (:attr:`PieceTests.measured`)."""
 
     stage: str
     segment: np.ndarray
     failed: tuple[str, ...]
     distance_m: float
+    measured: dict[str, float]
+
+    def measured_text(self) -> str:
+        """``measured`` for a reader, e.g. ``returns 184, top 3.28 m, bottom 0.77 m``."""
+        return ", ".join(f"{name[:-2]} {value:.2f} m" if name.endswith("_m") else
+                         f"{name} {value:.0f}" if name == "returns" else f"{name} {value:.2f}"
+                         for name, value in self.measured.items())
 
     @property
     def length_m(self) -> float:
@@ -60,7 +68,8 @@ class ScanExplanation:
             distance = _distances(point, segments[:, :2], segments[:, 2:])
             for k in np.argsort(distance, kind="stable"):
                 if distance[k] <= radius_m:
-                    out.append(PieceVerdict(stage, segments[k], tuple(tests.failed(int(k))), float(distance[k])))
+                    out.append(PieceVerdict(stage, segments[k], tuple(tests.failed(int(k))), float(distance[k]),
+                                            {name: float(value[k]) for name, value in tests.measured.items()}))
         return out
 
     def failure_counts(self, stage: str) -> dict[str, int]:

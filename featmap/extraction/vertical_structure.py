@@ -123,7 +123,7 @@ Numpy in, numpy out; the same scan always gives the same segments (no random sam
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from pydantic import Field
@@ -1177,12 +1177,15 @@ class PieceTests:
         passed: test name -> (n,) bool, True where the piece passes that test.
         cell_piece: (C,) the piece of each cell in ``[0, n)``, -1 for none (the height tests only; None for
             the final ones, which are made on :class:`PieceMeasures`, one row per piece).
+        measured: name -> (n,) some of what the tests looked at, for a reader (``returns``; names ending in
+            ``_m`` are metres, heights above the local ground).
     """
 
     a: np.ndarray
     b: np.ndarray
     passed: dict[str, np.ndarray]
     cell_piece: np.ndarray | None = None
+    measured: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def kept(self) -> np.ndarray:
@@ -1313,7 +1316,8 @@ def height_tests(cells: Cells, label: np.ndarray, config: VerticalStructureConfi
                       | ((length >= config.long_m) & (top >= config.long_min_top_m)))
     passed["not_crown_underside"] = ~(floating_short & (length < config.long_m))
     passed["not_trunk"] = ~(trunk & (length < config.solid_length_m))
-    return PieceTests(a=a, b=b, passed=passed, cell_piece=cell_piece)
+    return PieceTests(a=a, b=b, passed=passed, cell_piece=cell_piece,
+                      measured={"returns": count, "top_m": top, "bottom_m": bottom})
 
 
 def _settled_cells(cells: Cells, members: np.ndarray, spacing: np.ndarray, config: VerticalStructureConfig) -> np.ndarray:
@@ -1858,7 +1862,8 @@ def final_tests(measures: PieceMeasures | None, config: VerticalStructureConfig,
             if noise_of.sum() >= 3:
                 noise = float(np.median(m.rms[noise_of] / cos_incidence[noise_of]))
                 passed["sparse_noise_curve"] = ~(sparse & (m.sparse_curve > config.sparse_curve_factor * noise))
-    return PieceTests(a=m.a, b=m.b, passed=passed)
+    return PieceTests(a=m.a, b=m.b, passed=passed,
+                      measured={"returns": m.count, "rms_m": m.rms, "core": m.core, "behind": m.behind})
 
 
 # --- stage 8: walls hidden above --------------------------------------------------------------------------

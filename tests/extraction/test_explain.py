@@ -26,8 +26,11 @@ def test_the_fence_near_a_point_fails_the_top_and_tall_tests_and_the_front_passe
     (fence,) = [v for v in explanation.near((8.0, 9.0), 0.3) if v.length_m > 3]
     assert (fence.stage, fence.failed) == ("height", ("top", "tall"))
     assert fence.length_m == pytest.approx(12, abs=0.3) and fence.distance_m < 0.1
+    assert fence.measured["top_m"] == pytest.approx(1.4, abs=0.15) and fence.measured["returns"] > 100
+    assert fence.measured_text().startswith(f"returns {fence.measured['returns']:.0f}, top 1.")
     front = [v for v in explanation.near((30.0, 0.0), 0.2) if v.length_m > 40]
     assert [(v.stage, v.failed) for v in front] == [("height", ()), ("final", ())]
+    assert front[1].measured["rms_m"] == pytest.approx(0.02, abs=0.01) and set(front[1].measured) == {"returns", "rms_m", "core", "behind"}
     assert explanation.failure_counts("height")["tall"] >= 1 and explanation.failure_counts("final")["rms"] == 0
 
 
@@ -58,7 +61,7 @@ def test_the_command_lists_the_pieces_near_a_point_and_counts_without_one(fence_
     fence_scan.astype("<f4").tofile(path)
     res = CliRunner().invoke(app, ["explain", str(path), "--at", "8,9", "--radius", "0.3"])
     assert res.exit_code == 0, res.output
-    assert "1 wall segment(s)" in res.output and "top, tall" in res.output
+    assert "1 wall segment(s)" in res.output and "top, tall" in res.output and "returns" in res.output
     res = CliRunner().invoke(app, ["explain", str(path)])
     assert res.exit_code == 0, res.output
     assert "pieces failing it" in res.output and "not_trunk" in res.output
