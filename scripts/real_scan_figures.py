@@ -27,6 +27,7 @@ import numpy as np
 from featmap.errors import FeatmapError
 from featmap.extraction import extract_scan
 from featmap.extraction.explain import explain_scan
+from featmap.geometry import segment_lengths
 from featmap.io.atomic import atomic_write_text
 from featmap.io.kitti_raw import read_velo_bin
 from featmap.evaluation.wall_lists import lying_on, read_wall_lists, score_wall_list
@@ -64,7 +65,7 @@ def why_missed(explanation, line, tolerance_m: float, most: int = 3) -> str:
     found = []
     for stage, suffix in (("height", ""), ("final", " (final tests)")):
         tests, segments = explanation.stages[stage], explanation.segments(stage)
-        length = np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1])
+        length = segment_lengths(segments)
         for k in np.flatnonzero(lying_on(segments, line, tolerance_m) & (length >= MIN_PIECE_M) & ~tests.kept):
             found.append((float(length[k]), f"{length[k]:.1f} m: {', '.join(tests.failed(int(k)))}{suffix}"))
     found.sort(key=lambda item: -item[0])

@@ -15,6 +15,7 @@ import numpy as np
 
 from featmap.extraction.base import ScanSegments
 from featmap.extraction.vertical_structure import PieceTests, VerticalStructureConfig, extract_vertical_structure
+from featmap.geometry import point_segment_distance
 
 STAGES = ("height", "final")
 """The extractor's stages of tests, in order."""
@@ -65,7 +66,7 @@ class ScanExplanation:
         out = []
         for stage, tests in self.stages.items():
             segments = self.segments(stage)
-            distance = _distances(point, segments[:, :2], segments[:, 2:])
+            distance = point_segment_distance(np.broadcast_to(point, (len(segments), 2)), segments)
             for k in np.argsort(distance, kind="stable"):
                 if distance[k] <= radius_m:
                     out.append(PieceVerdict(stage, segments[k], tuple(tests.failed(int(k))), float(distance[k]),
@@ -75,13 +76,6 @@ class ScanExplanation:
     def failure_counts(self, stage: str) -> dict[str, int]:
         """How many pieces of ``stage`` fail each of its tests (a piece counts under each it fails), in order."""
         return {name: int((~passed).sum()) for name, passed in self.stages[stage].passed.items()}
-
-
-def _distances(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(K,) distance of ``point`` (2,) from each segment a-b ((K, 2) each)."""
-    d = b - a
-    t = np.clip(((point - a) * d).sum(1) / np.maximum((d * d).sum(1), 1e-12), 0.0, 1.0)
-    return np.hypot(*(a + t[:, None] * d - point).T)
 
 
 def explain_scan(points, config: VerticalStructureConfig = VerticalStructureConfig()) -> ScanExplanation:
