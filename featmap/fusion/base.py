@@ -57,7 +57,8 @@ class FusionMethod:
             corner optimisation); ``progress(done, total)`` is called now and then by long fusions.
         support_rule: ``config -> SupportRule`` for a method that drops small clusters (refinement
             applies the same rule to the features it makes); None: every cluster is kept. Such a method's
-            ``fuse`` also takes ``clean=`` (N,) bool or None, the segments that are clean views.
+            ``fuse`` also takes ``clean=`` (N,) bool or None, the segments that are clean views, and
+            ``coarse=`` (N,) bool or None, the coarse views (:meth:`SupportRule.coarse_views`).
         prepare: imports the method's heavy libraries and loads its compiled code, so that callers can keep
             that one-off cost out of fusion timings.
     """
@@ -79,13 +80,16 @@ class SupportRule:
     (a single member only when it covers ``min_single_length_m``, if set: one view is weaker
     evidence than two that agree), and, when ``clean_rms_ratio`` is set, smaller ones with a clean
     view among their members (:meth:`clean_views`: a segment much thinner than the input's typical
-    wall is a plane seen well, not clutter)."""
+    wall is a plane seen well, not clutter). With ``coarse_gap_m`` set, a coarse view (:meth:`coarse_views`:
+    returns that far apart along it) counts as a member but covers no length: a line drawn between a
+    few columns metres apart is no evidence that a wall spans them."""
 
     min_support: int = 1
     min_length_m: Optional[float] = None
     min_single_length_m: Optional[float] = None
     clean_rms_ratio: Optional[float] = None
     clean_min_length_m: float = 0.0
+    coarse_gap_m: Optional[float] = None
 
     def clean_views(self, segments: np.ndarray, rms: np.ndarray | None) -> np.ndarray | None:
         """(N,) True for the segments that are evidence of a wall on their own: at least
@@ -109,6 +113,23 @@ class SupportRule:
             return np.zeros(len(rms), dtype=bool)
         with np.errstate(invalid="ignore"):
             return known & (rms <= self.clean_rms_ratio * typical) & (segment_lengths(segments) >= self.clean_min_length_m)
+
+    def coarse_views(self, segments: np.ndarray, max_gap: np.ndarray | None) -> np.ndarray | None:
+        """(N,) True for the segments whose longest stretch between consecutive returns is at least
+        ``coarse_gap_m``: they cover no length for the length rule. None when the rule has no such clause
+        or ``max_gap`` is None.
+
+        Args:
+            segments: (N, 4) world-frame segments (metres); max_gap: (N,) each one's longest stretch
+                between consecutive returns along it (metres, >= 0; the extraction's column).
+        """
+        if self.coarse_gap_m is None or max_gap is None:
+            return None
+        max_gap = np.asarray(max_gap, dtype=float).reshape(-1)
+        if len(max_gap) != len(segments):
+            raise ValueError(f"max_gap has {len(max_gap)} entries for {len(segments)} segments")
+        with np.errstate(invalid="ignore"):
+            return max_gap >= self.coarse_gap_m
 
     def keep(self, members: np.ndarray, covered: Callable[[], np.ndarray],
              clean_members: np.ndarray | None = None) -> np.ndarray:

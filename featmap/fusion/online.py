@@ -229,10 +229,11 @@ class OnlineFusion:
         origin = self.origin if self.origin is not None else np.zeros(2)
         valid = np.concatenate(self._valid) if self._valid else np.zeros(0, bool)
         rule = support_rule(self.section)
-        clean = rule.clean_views(segments, rms)
+        max_gap = self.max_gap()
+        clean, coarse = rule.clean_views(segments, rms), rule.coarse_views(segments, max_gap)
         i, j = self.links()
-        result = fuse_links(segments - np.tile(origin, 2), scan, valid, i, j, self.section, clean)
-        return finish_fusion(result, segments, scan, origin, self.config, rule, clean, self.max_gap())
+        result = fuse_links(segments - np.tile(origin, 2), scan, valid, i, j, self.section, clean, coarse)
+        return finish_fusion(result, segments, scan, origin, self.config, rule, clean, max_gap, coarse)
 
 
 def _joined(parts: list[np.ndarray | None]) -> np.ndarray | None:

@@ -51,6 +51,7 @@ class ProposedConfig(Section):
     min_single_length_m: Optional[float] = Field(5.0, ge=0, description="... a single segment only if it covers this much (one view is weaker evidence than two that agree; null = min_support_length_m)")
     clean_rms_ratio: Optional[float] = Field(0.5, gt=0, description="also keep smaller clusters with a clean view: a member whose fit rms is at most this times the median of all segments' (the extraction's rms column; null = off) ...")
     clean_min_length_m: float = Field(1.4, ge=0, description="... and that is at least this long")
+    coarse_gap_m: Optional[float] = Field(None, gt=0, description="a member whose returns lie this far apart along it (the extraction's max_gap column) counts toward min_support but covers no length for min_support_length_m and min_single_length_m (null = off)")
     fit_weighting: Literal["length", "none"] = Field("length", description="weight of each member's endpoints in the TLS fit")
 
 
@@ -220,7 +221,8 @@ def cluster_segments(n: int, i: np.ndarray, j: np.ndarray, scan: np.ndarray,
 
 
 def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig(),
-                  progress: Callable[[int, int], None] | None = None, clean: np.ndarray | None = None) -> FusionResult:
+                  progress: Callable[[int, int], None] | None = None, clean: np.ndarray | None = None,
+                  coarse: np.ndarray | None = None) -> FusionResult:
     """Fuse world-frame segments with the paper's method.
 
     Args:
@@ -229,19 +231,21 @@ def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig(),
         config: thresholds delta, gamma, eta, the support filter and fit weighting.
         progress: optional ``progress(done, total)`` callback (scans linked so far, all scans).
         clean: (N,) True for the segments that are clean views (``SupportRule.clean_views``), or None.
+        coarse: (N,) True for the coarse views (``SupportRule.coarse_views``), or None.
     Returns:
         FusionResult with (M, 4) fused segments (before corner optimisation; the registry applies it).
     """
     segments, scan, valid = validate_input(segments, scan)
     idx = np.flatnonzero(valid)
     if len(idx) == 0:
-        return fuse_links(segments, scan, valid, np.zeros(0, np.int64), np.zeros(0, np.int64), config, clean)
+        return fuse_links(segments, scan, valid, np.zeros(0, np.int64), np.zeros(0, np.int64), config, clean, coarse)
     i, j = linked_pairs(segments[idx], scan[idx], config, progress)
-    return fuse_links(segments, scan, valid, i, j, config, clean)
+    return fuse_links(segments, scan, valid, i, j, config, clean, coarse)
 
 
 def fuse_links(segments: np.ndarray, scan: np.ndarray, valid: np.ndarray, i: np.ndarray, j: np.ndarray,
-               config: ProposedConfig = ProposedConfig(), clean: np.ndarray | None = None) -> FusionResult:
+               config: ProposedConfig = ProposedConfig(), clean: np.ndarray | None = None,
+               coarse: np.ndarray | None = None) -> FusionResult:
     """The method's clusters, support filter and fit, from linked pairs found already.
 
     Args:
@@ -251,6 +255,7 @@ def fuse_links(segments: np.ndarray, scan: np.ndarray, valid: np.ndarray, i: np.
             components and first-link scans of all linked pairs (``linked_pairs``, or an
             :class:`featmap.fusion.online.OnlineFusion`).
         clean: (N,) True for the clean views (``SupportRule.clean_views``), or None.
+        coarse: (N,) True for the coarse views (``SupportRule.coarse_views``), or None: they cover no length.
     """
     labels = np.full(len(segments), -1, dtype=np.int64)
     idx = np.flatnonzero(valid)
@@ -263,6 +268,8 @@ def fuse_links(segments: np.ndarray, scan: np.ndarray, valid: np.ndarray, i: np.
     def covered() -> np.ndarray:
         # Few views of a wall still make it a wall when they cover enough of one line.
         small = sizes[groups] < config.min_support
+        if coarse is not None:
+            small &= ~coarse[idx]
         lines = fit_clusters(seg, groups, len(sizes), segment_lengths(seg))
         return observed_length(lines, seg, np.where(small, groups, -1))
 
@@ -283,7 +290,7 @@ def fuse_links(segments: np.ndarray, scan: np.ndarray, valid: np.ndarray, i: np.
 def support_rule(config: ProposedConfig) -> SupportRule:
     """The support filter of the proposed method's config."""
     return SupportRule(config.min_support, config.min_support_length_m, config.min_single_length_m,
-                       config.clean_rms_ratio, config.clean_min_length_m)
+                       config.clean_rms_ratio, config.clean_min_length_m, config.coarse_gap_m)
 
 
 METHOD = FusionMethod(name="proposed", title="Proposed (three criteria)", color="#d62728", linestyle="-",

@@ -366,7 +366,7 @@ def join_bends(fused: np.ndarray, first: np.ndarray, second: np.ndarray) -> tupl
 
 def refine(result: FusionResult, segments, scan, config: RefineConfig,
            rule: SupportRule = SupportRule(), clean: np.ndarray | None = None,
-           max_gap: np.ndarray | None = None) -> FusionResult:
+           max_gap: np.ndarray | None = None, coarse: np.ndarray | None = None) -> FusionResult:
     """Apply the enabled refinement steps to one method's result (see the module docstring).
 
     Args:
@@ -379,6 +379,7 @@ def refine(result: FusionResult, segments, scan, config: RefineConfig,
             for that rule (``SupportRule.clean_views``), or None.
         max_gap: (N,) each segment's longest stretch between consecutive returns (metres; the
             extraction's ``max_gap`` column), or None.
+        coarse: (N,) the rule's coarse views (``SupportRule.coarse_views``; they cover no length), or None.
     Returns:
         A FusionResult whose segments, support, labels and segments_before_corners describe the
         refined features (corner optimisation still to come); ``extras["refine"]`` counts the changes.
@@ -440,7 +441,8 @@ def refine(result: FusionResult, segments, scan, config: RefineConfig,
         members = np.bincount(labels[member], minlength=len(fused))
         clean_members = (None if clean is None else
                          np.bincount(labels[member], weights=clean[member], minlength=len(fused)))
-        keep = rule.keep(members, lambda: observed_length(fused, segments, labels), clean_members)
+        covering = labels if coarse is None else np.where(coarse, -1, labels)
+        keep = rule.keep(members, lambda: observed_length(fused, segments, covering), clean_members)
         stats["dropped"] = int((~keep).sum())
         remap = np.full(len(fused), -1, dtype=np.int64)
         remap[keep] = np.arange(keep.sum())

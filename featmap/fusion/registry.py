@@ -102,25 +102,26 @@ def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig(),  # ty
     shift = np.tile(origin, 2)
     section = getattr(config, name)
     if method.support_rule is None:
-        rule, clean = SupportRule(), None
+        rule, clean, coarse = SupportRule(), None, None
         result = method.fuse(segments - shift, scan, section, progress=progress)
     else:
         rule = method.support_rule(section)
-        clean = rule.clean_views(segments, rms)
-        result = method.fuse(segments - shift, scan, section, progress=progress, clean=clean)
-    return finish_fusion(result, segments, scan, origin, config, rule, clean, max_gap)
+        clean, coarse = rule.clean_views(segments, rms), rule.coarse_views(segments, max_gap)
+        result = method.fuse(segments - shift, scan, section, progress=progress, clean=clean, coarse=coarse)
+    return finish_fusion(result, segments, scan, origin, config, rule, clean, max_gap, coarse)
 
 
 def finish_fusion(result: FusionResult, segments: np.ndarray, scan, origin: np.ndarray,
                   config: FusionConfig = FusionConfig(),  # type: ignore[valid-type]
                   rule: SupportRule = SupportRule(), clean: np.ndarray | None = None,
-                  max_gap: np.ndarray | None = None) -> FusionResult:
+                  max_gap: np.ndarray | None = None, coarse: np.ndarray | None = None) -> FusionResult:
     """What runs after every method: the shared refinement and corner optimisation, then back from the
     working frame (``origin`` (2,) subtracted, see :func:`working_origin`) to the frame of ``segments``
     ((N, 4), the method's input before the shift; ``result`` was fused from ``segments - origin``);
-    ``max_gap`` (N,) or None as for :func:`fuse`."""
+    ``max_gap`` (N,) or None as for :func:`fuse`; ``clean`` and ``coarse`` (N,) or None, the rule's clean and
+    coarse views."""
     shift = np.tile(origin, 2)
-    result = refine(result, segments - shift, scan, config.refine, rule, clean, max_gap)
+    result = refine(result, segments - shift, scan, config.refine, rule, clean, max_gap, coarse)
     before = result.segments_before_corners
     after = optimise_corners(before, config.corners)
     if not origin.any():

@@ -120,6 +120,18 @@ def test_the_split_at_unresolved_gaps_is_the_offline_one():
     assert np.array_equal(result.labels, offline.labels)
 
 
+def test_coarse_views_are_the_offline_ones():
+    """With coarse_gap_m, the views whose returns lie far apart cover no length online as offline."""
+    config = FusionConfig.model_validate({"proposed": {"coarse_gap_m": 2.0}})
+    online = OnlineFusion(config)
+    for s in range(3):
+        online.add_scan([[0.0, 0.01 * s, 30.0, 0.0], [5.0, 10.0, 16.0, 10.0 + 0.01 * s]], max_gap=[0.1, 6.4])
+    offline = fuse("proposed", *online.segments()[:2], config, max_gap=online.max_gap())
+    result = online.fused()
+    assert np.array_equal(result.segments, offline.segments) and np.array_equal(result.labels, offline.labels)
+    assert result.labels.reshape(3, 2)[:, 1].tolist() == [-1] * 3       # the coarse piece is dropped
+
+
 def test_a_pair_within_rounding_of_a_threshold_is_decided_as_offline():
     """Two views exactly eta = 0.5 m apart: left undecided by the compiled code and decided by numpy, as offline."""
     online = OnlineFusion(SMALL_SUPPORT)

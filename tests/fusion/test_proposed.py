@@ -91,6 +91,37 @@ def test_a_lone_view_much_thinner_than_the_typical_wall_is_kept(rms, length, kep
     assert len(fuse("proposed", segs, scan, paper, rms=rms_all).segments) == 1
 
 
+@pytest.mark.parametrize("views,max_gap,kept_plain,kept_coarse", [
+    (1, 6.4, True, False),      # one 11 m view whose returns lie 6.4 m apart: two columns, no wall between
+    (2, 3.0, True, False),      # two such views that agree
+    (2, 0.3, True, True),       # two finely sampled views: they cover their length
+    (4, 6.4, True, True)])      # min_support views are kept by their count alone
+def test_coarse_views_count_as_members_but_cover_no_length(views, max_gap, kept_plain, kept_coarse):
+    """A lone 11 m piece (or a few that agree) beside a wall seen 20 times: with coarse_gap_m = 2 m, a
+    view whose returns lie at least that far apart along it no longer earns its cluster a place by
+    length (min_support_length_m 3 m, min_single_length_m 5 m); the wall is kept either way."""
+    rng = np.random.default_rng(4)
+    segs, scan = observe_walls(np.array([0.0, 0.0, 30.0, 0.0]), 20, 0.02, rng)
+    piece = np.array([[5.0, 10.0 + 0.01 * k, 16.0, 10.0 + 0.01 * k] for k in range(views)])
+    segs, scan = np.vstack([segs, piece]), np.concatenate([scan, np.arange(views)])
+    gaps = np.r_[np.full(20, 0.1), np.full(views, max_gap)]
+    coarse = FusionConfig.model_validate({"proposed": {"coarse_gap_m": 2.0}})
+    for config, kept in ((FusionConfig(), kept_plain), (coarse, kept_coarse)):
+        result = fuse("proposed", segs, scan, config, max_gap=gaps)
+        assert len(result.segments) == (2 if kept else 1)
+        assert (result.labels[20:] >= 0).all() == kept
+        assert result.labels[:20].tolist() == [result.labels[0]] * 20
+    # without the extraction's max_gap no view is coarse
+    assert len(fuse("proposed", segs, scan, coarse).segments) == 2
+
+
+def test_coarse_views_need_one_max_gap_per_segment():
+    segs = np.array([[0.0, 0.0, 2.0, 0.0]] * 3)
+    coarse = FusionConfig.model_validate({"proposed": {"coarse_gap_m": 2.0}})
+    with pytest.raises(ValueError, match="max_gap has 2 entries for 3 segments"):
+        fuse("proposed", segs, np.arange(3), coarse, max_gap=np.array([0.1, 0.1]))
+
+
 @pytest.mark.parametrize("rms, clean", [([0.0, 0.0, 0.0, 0.0], [False] * 4),       # no scale: nothing is clean
                                         ([0.0, 0.01, 0.01, 0.01], [True, False, False, False]),
                                         ([-0.01, 0.004, 0.01, 0.01], [False, True, False, False]),
