@@ -527,7 +527,9 @@ def highest_returns(xyz: np.ndarray, tan_top: float, config: VerticalStructureCo
     at_best = slope[high] >= best[bins]
     best_range = np.zeros(n_bins)
     best_range[bins[at_best]] = rng[high][at_best]
-    top = slope[high] >= tan_top - np.deg2rad(TOP_BEAM_DEG) * (1 + tan_top ** 2)
+    # No top beam measured (no return beyond 3 m: tan_top is inf): no return is of the top beam.
+    top_slope = tan_top - np.deg2rad(TOP_BEAM_DEG) * (1 + tan_top ** 2) if np.isfinite(tan_top) else np.inf
+    top = slope[high] >= top_slope
     top_range = np.full(n_bins, np.inf)
     np.minimum.at(top_range, bins[top], rng[high][top])
     return best, best_range, top_range, az_bin

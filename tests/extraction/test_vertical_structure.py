@@ -7,6 +7,8 @@ x = 20 in the scan.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -366,6 +368,18 @@ def test_ground_only_and_out_of_range_scans_give_nothing():
     far = cast_scan([building(20, -10, 35, 10)])
     far[:, :2] *= 10                              # everything beyond max_range_m
     assert len(extract_vertical_structure(far)) == 0
+
+
+def test_a_scan_with_no_return_beyond_3_m_gives_a_result_without_warnings():
+    """Everything within 3 m (a van beside the sensor hides the street): no top beam is measured (its
+    tangent is inf), which made the top-beam test compute inf - inf (a RuntimeWarning in a benchmark run)."""
+    rng = np.random.default_rng(0)
+    side = np.c_[np.full(3000, 2.0), rng.uniform(-2, 2, 3000), rng.uniform(-1.7, 1.3, 3000), np.zeros(3000)]
+    ground = np.c_[rng.uniform(-2, 2, (2000, 2)), np.full(2000, -1.73), np.zeros(2000)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        result = extract_vertical_structure(np.vstack([side, ground]))
+    assert result.segments.shape[1:] == (4,)
 
 
 def test_a_scan_with_nothing_tall_enough_for_a_wall_gives_nothing():
