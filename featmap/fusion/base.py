@@ -73,6 +73,17 @@ class FusionMethod:
     prepare: Callable[[], None] = lambda: None
 
 
+def segment_column(name: str, values, n_segments: int) -> np.ndarray | None:
+    """One per-segment column (``rms``, ``max_gap``, ...) as a float array (N,), or None when ``values`` is
+    None; a ValueError naming the column when it does not hold one entry per segment."""
+    if values is None:
+        return None
+    column = np.asarray(values, dtype=float).reshape(-1)
+    if len(column) != n_segments:
+        raise ValueError(f"{name} has {len(column)} entries for {n_segments} segments")
+    return column
+
+
 @dataclass(frozen=True)
 class SupportRule:
     """Which clusters a support filter keeps: those with at least ``min_support`` members, and, when
@@ -103,9 +114,7 @@ class SupportRule:
         """
         if self.clean_rms_ratio is None or rms is None:
             return None
-        rms = np.asarray(rms, dtype=float).reshape(-1)
-        if len(rms) != len(segments):
-            raise ValueError(f"rms has {len(rms)} entries for {len(segments)} segments")
+        rms = segment_column("rms", rms, len(segments))
         with np.errstate(invalid="ignore"):
             known = np.isfinite(rms) & (rms >= 0)
         typical = float(np.median(rms[known])) if known.any() else 0.0
@@ -125,11 +134,7 @@ class SupportRule:
         """
         if self.coarse_gap_m is None or max_gap is None:
             return None
-        max_gap = np.asarray(max_gap, dtype=float).reshape(-1)
-        if len(max_gap) != len(segments):
-            raise ValueError(f"max_gap has {len(max_gap)} entries for {len(segments)} segments")
-        with np.errstate(invalid="ignore"):
-            return max_gap >= self.coarse_gap_m
+        return segment_column("max_gap", max_gap, len(segments)) >= self.coarse_gap_m
 
     def keep(self, members: np.ndarray, covered: Callable[[], np.ndarray],
              clean_members: np.ndarray | None = None) -> np.ndarray:

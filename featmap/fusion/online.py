@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from featmap.fusion import link_forest as lf
-from featmap.fusion.base import MIN_SEGMENT_LENGTH_M, FusionResult
+from featmap.fusion.base import MIN_SEGMENT_LENGTH_M, FusionResult, segment_column
 from featmap.fusion.proposed import decided_links, fuse_links, support_rule
 from featmap.fusion.registry import FusionConfig, finish_fusion, working_origin
 from featmap.geometry import MAX_MAP_SPAN_M, as_segments, segment_lengths
@@ -104,10 +104,7 @@ class OnlineFusion:
         segments = as_segments(segments).astype(np.float64, copy=True)
         if not np.isfinite(segments).all():
             raise ValueError("segments contain NaN or inf")
-        rms, max_gap = (None if c is None else np.asarray(c, dtype=float).reshape(-1) for c in (rms, max_gap))
-        for name, column in (("rms", rms), ("max_gap", max_gap)):
-            if column is not None and len(column) != len(segments):
-                raise ValueError(f"{name} has {len(column)} entries for {len(segments)} segments")
+        rms, max_gap = segment_column("rms", rms, len(segments)), segment_column("max_gap", max_gap, len(segments))
         if self.origin is None and len(segments):
             self.origin = working_origin(segments)
         shift = np.tile(self.origin, 2) if self.origin is not None else np.zeros(4)

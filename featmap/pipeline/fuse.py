@@ -41,14 +41,19 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
     """Fuse ``table`` with every method in ``methods`` (corner optimisation included), timing each."""
     rms = table.extra.get("rms")
     if rms is None and len(table):
-        off = [f"fusion.{name}.clean_rms_ratio" for name in methods if _has_clean_clause(name, config)]
+        off = [f"fusion.{name}.clean_rms_ratio" for name, rule in _support_rules(methods, config).items()
+               if rule.clean_rms_ratio is not None]
         if off:
             reporter.warning(f"the segments have no rms column, so no segment counts as a clean view ({', '.join(off)} "
                              "has nothing to compare): small clusters are kept by count and length only")
     max_gap = table.extra.get("max_gap")
-    if max_gap is None and len(table) and config.refine.resolved_gap_m > 0:
-        reporter.warning("the segments have no max_gap column (their extractor does not measure it), so "
-                         "fusion.refine.resolved_gap_m cuts nothing")
+    if max_gap is None and len(table):
+        idle = ["fusion.refine.resolved_gap_m cuts nothing"] if config.refine.resolved_gap_m > 0 else []
+        idle += [f"fusion.{name}.coarse_gap_m finds no coarse view" for name, rule in _support_rules(methods, config).items()
+                 if rule.coarse_gap_m is not None]
+        if idle:
+            reporter.warning("the segments have no max_gap column (their extractor does not measure it), so "
+                             + " and ".join(idle))
     runs = []
     if len(table) < PROGRESS_MIN_SEGMENTS:
         with reporter.progress("fusing", len(methods)) as advance:
@@ -77,10 +82,14 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
     return runs
 
 
-def _has_clean_clause(name: str, config: FusionConfig) -> bool:  # type: ignore[valid-type]
-    """Whether method ``name``'s support rule keeps small clusters with a clean view (it needs the rms column)."""
-    method = get_method(name)
-    return method.support_rule is not None and method.support_rule(getattr(config, name)).clean_rms_ratio is not None
+def _support_rules(methods: list[str], config: FusionConfig) -> dict:  # type: ignore[valid-type]
+    """``{name: SupportRule}`` for the ``methods`` that drop small clusters, each with its config section."""
+    rules = {}
+    for name in methods:
+        method = get_method(name)
+        if method.support_rule is not None:
+            rules[name] = method.support_rule(getattr(config, name))
+    return rules
 
 
 def fuse_and_write(table: SegmentTable, methods: list[str], config, out: str | Path,
