@@ -59,7 +59,8 @@ def test_fuse_without_a_max_gap_column_names_the_settings_it_idles(tmp_path):
     """The default refinement's cut at unresolved gaps reads max_gap, and so does coarse_gap_m when set: a
     segments.csv without the column is fused, with a warning naming what does nothing."""
     seg = _segments_csv(tmp_path / "segments.csv")
-    res = runner.invoke(app, ["fuse", str(seg), "--method", "proposed", "--out", str(tmp_path / "a")])
+    res = runner.invoke(app, ["fuse", str(seg), "--method", "proposed", "--out", str(tmp_path / "a"),
+                              "--set", "fusion.proposed.coarse_gap_m=null"])
     assert res.exit_code == 0 and "resolved_gap_m cuts nothing" in res.output and "coarse_gap_m" not in res.output
     res = runner.invoke(app, ["fuse", str(seg), "--method", "proposed", "--out", str(tmp_path / "b"),
                               "--set", "fusion.proposed.coarse_gap_m=2.0", "--set", "fusion.refine.resolved_gap_m=0"])
