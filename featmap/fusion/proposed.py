@@ -51,7 +51,7 @@ class ProposedConfig(Section):
     min_single_length_m: Optional[float] = Field(5.0, ge=0, description="... a single segment only if it covers this much (one view is weaker evidence than two that agree; null = min_support_length_m)")
     clean_rms_ratio: Optional[float] = Field(0.5, gt=0, description="also keep smaller clusters with a clean view: a member whose fit rms is at most this times the median of all segments' (the extraction's rms column; null = off) ...")
     clean_min_length_m: float = Field(1.4, ge=0, description="... and that is at least this long")
-    coarse_gap_m: Optional[float] = Field(None, gt=0, description="a member whose returns lie this far apart along it (the extraction's max_gap column) counts toward min_support but covers no length for min_support_length_m and min_single_length_m (null = off)")
+    coarse_gap_m: Optional[float] = Field(2.0, gt=0, description="a member whose returns lie this far apart along it (the extraction's max_gap column) counts toward min_support but covers no length for min_support_length_m and min_single_length_m (null = off)")
     fit_weighting: Literal["length", "none"] = Field("length", description="weight of each member's endpoints in the TLS fit")
 
 

@@ -105,8 +105,9 @@ def test_coarse_views_count_as_members_but_cover_no_length(views, max_gap, kept_
     piece = np.array([[5.0, 10.0 + 0.01 * k, 16.0, 10.0 + 0.01 * k] for k in range(views)])
     segs, scan = np.vstack([segs, piece]), np.concatenate([scan, np.arange(views)])
     gaps = np.r_[np.full(20, 0.1), np.full(views, max_gap)]
-    coarse = FusionConfig.model_validate({"proposed": {"coarse_gap_m": 2.0}})
-    for config, kept in ((FusionConfig(), kept_plain), (coarse, kept_coarse)):
+    coarse, plain = FusionConfig(), FusionConfig.model_validate({"proposed": {"coarse_gap_m": None}})
+    assert coarse.proposed.coarse_gap_m == 2.0                      # the default
+    for config, kept in ((plain, kept_plain), (coarse, kept_coarse)):
         result = fuse("proposed", segs, scan, config, max_gap=gaps)
         assert len(result.segments) == (2 if kept else 1)
         assert (result.labels[20:] >= 0).all() == kept
