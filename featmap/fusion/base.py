@@ -57,8 +57,7 @@ class FusionMethod:
             corner optimisation); ``progress(done, total)`` is called now and then by long fusions.
         support_rule: ``config -> SupportRule`` for a method that drops small clusters (refinement
             applies the same rule to the features it makes); None: every cluster is kept. Such a method's
-            ``fuse`` also takes ``clean=`` (N,) bool or None, the segments that are clean views, and
-            ``coarse=`` (N,) bool or None, the coarse views (:meth:`SupportRule.coarse_views`).
+            ``fuse`` also takes ``views=``, a :class:`SupportViews` (the rule's clean and coarse views).
         prepare: imports the method's heavy libraries and loads its compiled code, so that callers can keep
             that one-off cost out of fusion timings.
     """
@@ -82,6 +81,37 @@ def segment_column(name: str, values, n_segments: int) -> np.ndarray | None:
     if len(column) != n_segments:
         raise ValueError(f"{name} has {len(column)} entries for {n_segments} segments")
     return column
+
+
+@dataclass(frozen=True)
+class SupportViews:
+    """What a support rule reads per input segment beyond its geometry (:meth:`SupportRule.views`).
+
+    Attributes:
+        clean: (N,) bool, the clean views (:meth:`SupportRule.clean_views`: one keeps its cluster), or None.
+        coarse: (N,) bool, the coarse views (:meth:`SupportRule.coarse_views`: members that cover no
+            length), or None.
+    """
+
+    clean: np.ndarray | None = None
+    coarse: np.ndarray | None = None
+
+    def subset(self, idx: np.ndarray) -> "SupportViews":
+        """The views of the segments ``idx`` (K,) (indices into the N)."""
+        return SupportViews(None if self.clean is None else self.clean[idx],
+                            None if self.coarse is None else self.coarse[idx])
+
+    def clean_members(self, labels: np.ndarray, n_clusters: int) -> np.ndarray | None:
+        """(C,) how many clean views each of ``n_clusters`` clusters has, from the (N,) cluster label of
+        each segment (-1: in none); None without clean views."""
+        if self.clean is None:
+            return None
+        member = labels >= 0
+        return np.bincount(labels[member], weights=self.clean[member], minlength=n_clusters)
+
+    def covering(self, labels: np.ndarray) -> np.ndarray:
+        """(N,) ``labels`` with the coarse views' set to -1: the members whose length counts."""
+        return labels if self.coarse is None else np.where(self.coarse, -1, labels)
 
 
 @dataclass(frozen=True)
@@ -135,6 +165,11 @@ class SupportRule:
         if self.coarse_gap_m is None or max_gap is None:
             return None
         return segment_column("max_gap", max_gap, len(segments)) >= self.coarse_gap_m
+
+    def views(self, segments: np.ndarray, rms: np.ndarray | None, max_gap: np.ndarray | None) -> SupportViews:
+        """The rule's clean and coarse views of (N, 4) world-frame ``segments`` from the extraction's (N,)
+        ``rms`` and ``max_gap`` columns (metres, each None when absent)."""
+        return SupportViews(self.clean_views(segments, rms), self.coarse_views(segments, max_gap))
 
     def keep(self, members: np.ndarray, covered: Callable[[], np.ndarray],
              clean_members: np.ndarray | None = None) -> np.ndarray:

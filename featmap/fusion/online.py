@@ -227,10 +227,10 @@ class OnlineFusion:
         valid = np.concatenate(self._valid) if self._valid else np.zeros(0, bool)
         rule = support_rule(self.section)
         max_gap = self.max_gap()
-        clean, coarse = rule.clean_views(segments, rms), rule.coarse_views(segments, max_gap)
+        views = rule.views(segments, rms, max_gap)
         i, j = self.links()
-        result = fuse_links(segments - np.tile(origin, 2), scan, valid, i, j, self.section, clean, coarse)
-        return finish_fusion(result, segments, scan, origin, self.config, rule, clean, max_gap, coarse)
+        result = fuse_links(segments - np.tile(origin, 2), scan, valid, i, j, self.section, views)
+        return finish_fusion(result, segments, scan, origin, self.config, rule, views, max_gap)
 
 
 def _joined(parts: list[np.ndarray | None]) -> np.ndarray | None:

@@ -31,7 +31,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from featmap.config import Section
-from featmap.fusion.base import (TINY_INPUT, FusionMethod, FusionResult, SupportRule, fit_clusters,
+from featmap.fusion.base import (TINY_INPUT, FusionMethod, FusionResult, SupportRule, SupportViews, fit_clusters,
                                  relabel_by_first_appearance, validate_input)
 from featmap.fusion.gaps import observed_length
 from featmap.geometry import (circle_overlap_area, included_angle, line_coefficients, point_segment_distance,
@@ -221,8 +221,8 @@ def cluster_segments(n: int, i: np.ndarray, j: np.ndarray, scan: np.ndarray,
 
 
 def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig(),
-                  progress: Callable[[int, int], None] | None = None, clean: np.ndarray | None = None,
-                  coarse: np.ndarray | None = None) -> FusionResult:
+                  progress: Callable[[int, int], None] | None = None,
+                  views: SupportViews = SupportViews()) -> FusionResult:
     """Fuse world-frame segments with the paper's method.
 
     Args:
@@ -230,22 +230,20 @@ def fuse_proposed(segments, scan, config: ProposedConfig = ProposedConfig(),
         scan: (N,) index of the scan each segment was extracted from.
         config: thresholds delta, gamma, eta, the support filter and fit weighting.
         progress: optional ``progress(done, total)`` callback (scans linked so far, all scans).
-        clean: (N,) True for the segments that are clean views (``SupportRule.clean_views``), or None.
-        coarse: (N,) True for the coarse views (``SupportRule.coarse_views``), or None.
+        views: the support rule's clean and coarse views of the N (``SupportRule.views``).
     Returns:
         FusionResult with (M, 4) fused segments (before corner optimisation; the registry applies it).
     """
     segments, scan, valid = validate_input(segments, scan)
     idx = np.flatnonzero(valid)
     if len(idx) == 0:
-        return fuse_links(segments, scan, valid, np.zeros(0, np.int64), np.zeros(0, np.int64), config, clean, coarse)
+        return fuse_links(segments, scan, valid, np.zeros(0, np.int64), np.zeros(0, np.int64), config, views)
     i, j = linked_pairs(segments[idx], scan[idx], config, progress)
-    return fuse_links(segments, scan, valid, i, j, config, clean, coarse)
+    return fuse_links(segments, scan, valid, i, j, config, views)
 
 
 def fuse_links(segments: np.ndarray, scan: np.ndarray, valid: np.ndarray, i: np.ndarray, j: np.ndarray,
-               config: ProposedConfig = ProposedConfig(), clean: np.ndarray | None = None,
-               coarse: np.ndarray | None = None) -> FusionResult:
+               config: ProposedConfig = ProposedConfig(), views: SupportViews = SupportViews()) -> FusionResult:
     """The method's clusters, support filter and fit, from linked pairs found already.
 
     Args:
@@ -254,8 +252,8 @@ def fuse_links(segments: np.ndarray, scan: np.ndarray, valid: np.ndarray, i: np.
         i, j: (K,) linked pairs as indices into the valid segments (``segments[valid]``), with the connected
             components and first-link scans of all linked pairs (``linked_pairs``, or an
             :class:`featmap.fusion.online.OnlineFusion`).
-        clean: (N,) True for the clean views (``SupportRule.clean_views``), or None.
-        coarse: (N,) True for the coarse views (``SupportRule.coarse_views``), or None: they cover no length.
+        views: the support rule's clean and coarse views of the N (``SupportRule.views``; coarse views
+            cover no length).
     """
     labels = np.full(len(segments), -1, dtype=np.int64)
     idx = np.flatnonzero(valid)
@@ -264,17 +262,15 @@ def fuse_links(segments: np.ndarray, scan: np.ndarray, valid: np.ndarray, i: np.
         empty = np.zeros((0, 4))
         return FusionResult(empty, np.zeros(0, np.int64), labels, empty, 0, int((~valid).sum()))
     groups, sizes = cluster_segments(len(seg), i, j, sc, seg)
+    views = views.subset(idx)
 
     def covered() -> np.ndarray:
         # Few views of a wall still make it a wall when they cover enough of one line.
         small = sizes[groups] < config.min_support
-        if coarse is not None:
-            small &= ~coarse[idx]
         lines = fit_clusters(seg, groups, len(sizes), segment_lengths(seg))
-        return observed_length(lines, seg, np.where(small, groups, -1))
+        return observed_length(lines, seg, views.covering(np.where(small, groups, -1)))
 
-    clean_members = None if clean is None else np.bincount(groups, weights=clean[idx], minlength=len(sizes))
-    kept = support_rule(config).keep(sizes, covered, clean_members)
+    kept = support_rule(config).keep(sizes, covered, views.clean_members(groups, len(sizes)))
     new_id = np.full(len(sizes), -1, dtype=np.int64)
     new_id[kept] = np.arange(kept.sum())
     sub_labels = new_id[groups]

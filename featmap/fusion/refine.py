@@ -39,7 +39,8 @@ from pydantic import Field
 from scipy.spatial import cKDTree
 
 from featmap.config import Section
-from featmap.fusion.base import FusionResult, SupportRule, fit_clusters, relabel_by_first_appearance, validate_input
+from featmap.fusion.base import (FusionResult, SupportRule, SupportViews, fit_clusters, relabel_by_first_appearance,
+                                 validate_input)
 from featmap.fusion.gaps import observed_length, split_at_gaps, split_at_unresolved_gaps, trim_coarse_ends
 from featmap.geometry import segment_lengths
 
@@ -365,8 +366,8 @@ def join_bends(fused: np.ndarray, first: np.ndarray, second: np.ndarray) -> tupl
 
 
 def refine(result: FusionResult, segments, scan, config: RefineConfig,
-           rule: SupportRule = SupportRule(), clean: np.ndarray | None = None,
-           max_gap: np.ndarray | None = None, coarse: np.ndarray | None = None) -> FusionResult:
+           rule: SupportRule = SupportRule(), views: SupportViews = SupportViews(),
+           max_gap: np.ndarray | None = None) -> FusionResult:
     """Apply the enabled refinement steps to one method's result (see the module docstring).
 
     Args:
@@ -375,11 +376,10 @@ def refine(result: FusionResult, segments, scan, config: RefineConfig,
         config: ``max_offset_m = 0`` turns split and merge off; ``split_gap_m = 0`` the gap split;
             ``resolved_gap_m = 0`` (or ``max_gap`` None) the split at unresolved gaps.
         rule: the method's support rule, applied again to the refined features (a piece split off a
-            cluster must earn its place like any cluster); clean: (N,) the segments that are clean views
-            for that rule (``SupportRule.clean_views``), or None.
+            cluster must earn its place like any cluster); views: that rule's clean and coarse views of
+            the N (``SupportRule.views``; coarse views cover no length).
         max_gap: (N,) each segment's longest stretch between consecutive returns (metres; the
             extraction's ``max_gap`` column), or None.
-        coarse: (N,) the rule's coarse views (``SupportRule.coarse_views``; they cover no length), or None.
     Returns:
         A FusionResult whose segments, support, labels and segments_before_corners describe the
         refined features (corner optimisation still to come); ``extras["refine"]`` counts the changes.
@@ -437,12 +437,10 @@ def refine(result: FusionResult, segments, scan, config: RefineConfig,
         fused, stats["bends_joined"] = join_bends(fused, labels[bends[:, 0]], labels[bends[:, 1]])
 
     if rule.min_support > 1 and len(fused):
-        member = labels >= 0
-        members = np.bincount(labels[member], minlength=len(fused))
-        clean_members = (None if clean is None else
-                         np.bincount(labels[member], weights=clean[member], minlength=len(fused)))
-        covering = labels if coarse is None else np.where(coarse, -1, labels)
-        keep = rule.keep(members, lambda: observed_length(fused, segments, covering), clean_members)
+        members = np.bincount(labels[labels >= 0], minlength=len(fused))
+        covering = views.covering(labels)
+        keep = rule.keep(members, lambda: observed_length(fused, segments, covering),
+                         views.clean_members(labels, len(fused)))
         stats["dropped"] = int((~keep).sum())
         remap = np.full(len(fused), -1, dtype=np.int64)
         remap[keep] = np.arange(keep.sum())

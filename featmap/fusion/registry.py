@@ -20,7 +20,7 @@ from pydantic import create_model
 from featmap.config import Section
 from featmap.errors import ConfigError
 from featmap.fusion import density, meanshift, proposed
-from featmap.fusion.base import FusionMethod, FusionResult, SupportRule
+from featmap.fusion.base import FusionMethod, FusionResult, SupportRule, SupportViews
 from featmap.fusion.corners import CornerConfig, optimise_corners
 from featmap.fusion.refine import RefineConfig, refine
 from featmap.geometry import as_segments
@@ -102,26 +102,25 @@ def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig(),  # ty
     shift = np.tile(origin, 2)
     section = getattr(config, name)
     if method.support_rule is None:
-        rule, clean, coarse = SupportRule(), None, None
+        rule, views = SupportRule(), SupportViews()
         result = method.fuse(segments - shift, scan, section, progress=progress)
     else:
         rule = method.support_rule(section)
-        clean, coarse = rule.clean_views(segments, rms), rule.coarse_views(segments, max_gap)
-        result = method.fuse(segments - shift, scan, section, progress=progress, clean=clean, coarse=coarse)
-    return finish_fusion(result, segments, scan, origin, config, rule, clean, max_gap, coarse)
+        views = rule.views(segments, rms, max_gap)
+        result = method.fuse(segments - shift, scan, section, progress=progress, views=views)
+    return finish_fusion(result, segments, scan, origin, config, rule, views, max_gap)
 
 
 def finish_fusion(result: FusionResult, segments: np.ndarray, scan, origin: np.ndarray,
                   config: FusionConfig = FusionConfig(),  # type: ignore[valid-type]
-                  rule: SupportRule = SupportRule(), clean: np.ndarray | None = None,
-                  max_gap: np.ndarray | None = None, coarse: np.ndarray | None = None) -> FusionResult:
+                  rule: SupportRule = SupportRule(), views: SupportViews = SupportViews(),
+                  max_gap: np.ndarray | None = None) -> FusionResult:
     """What runs after every method: the shared refinement and corner optimisation, then back from the
     working frame (``origin`` (2,) subtracted, see :func:`working_origin`) to the frame of ``segments``
     ((N, 4), the method's input before the shift; ``result`` was fused from ``segments - origin``);
-    ``max_gap`` (N,) or None as for :func:`fuse`; ``clean`` and ``coarse`` (N,) or None, the rule's clean and
-    coarse views."""
+    ``max_gap`` (N,) or None as for :func:`fuse`; ``views``: the rule's clean and coarse views of the N."""
     shift = np.tile(origin, 2)
-    result = refine(result, segments - shift, scan, config.refine, rule, clean, max_gap, coarse)
+    result = refine(result, segments - shift, scan, config.refine, rule, views, max_gap)
     before = result.segments_before_corners
     after = optimise_corners(before, config.corners)
     if not origin.any():

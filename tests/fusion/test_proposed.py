@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from featmap.fusion import FusionConfig, fuse
+from featmap.fusion.base import SupportViews
 from featmap.fusion.proposed import ProposedConfig, evaluate_pairs, fuse_proposed, support_rule
 from featmap.geometry import point_segment_distance
 from featmap.simulation.segments import observe_walls
@@ -121,6 +122,17 @@ def test_coarse_views_need_one_max_gap_per_segment():
     coarse = FusionConfig.model_validate({"proposed": {"coarse_gap_m": 2.0}})
     with pytest.raises(ValueError, match="max_gap has 2 entries for 3 segments"):
         fuse("proposed", segs, np.arange(3), coarse, max_gap=np.array([0.1, 0.1]))
+
+
+def test_support_views_count_clean_members_and_leave_coarse_ones_out_of_the_length():
+    views = SupportViews(clean=np.array([True, False, True, True]), coarse=np.array([False, True, False, True]))
+    labels = np.array([0, 0, -1, 1])            # segment 2 is in no cluster; cluster 2 has no member
+    assert views.clean_members(labels, 3).tolist() == [1, 1, 0]
+    assert views.covering(labels).tolist() == [0, -1, -1, -1]
+    part = views.subset(np.array([1, 3]))
+    assert part.clean.tolist() == [False, True] and part.coarse.tolist() == [True, True]
+    assert SupportViews().clean_members(labels, 3) is None
+    assert SupportViews().covering(labels).tolist() == labels.tolist()
 
 
 @pytest.mark.parametrize("rms, clean", [([0.0, 0.0, 0.0, 0.0], [False] * 4),       # no scale: nothing is clean
