@@ -1,6 +1,6 @@
 """Generalization benchmark: per-scan extraction and fused maps on procedurally generated worlds.
 
-    .venv/bin/python benchmarks/bench_generalization.py [--split tuning|heldout|heldout2|...|heldout7] [--seeds S ...]
+    .venv/bin/python benchmarks/bench_generalization.py [--split tuning|heldout|heldout2|...|heldout8] [--seeds S ...]
         [--frames a:b:c] [--workers 2] [--set key=value ...] [--cache-dir DIR] [--no-cache] [--json FILE] [--docs]
         [--losses K] [--variant "key=value [key=value ...]" ...] [--foliage CP,CD,HP,HD|drawn]
 
@@ -10,15 +10,15 @@ curbs; hdl64, vlp32, vls128 or vlp16 with 0.1-0.4 deg azimuth steps, 1-3 cm rang
 dropout). ``--split tuning`` (default) uses ``TUNING_SEEDS``, the worlds to develop and tune on;
 ``--split heldout`` uses ``HELDOUT_SEEDS``, ``--split heldout2`` ``SECOND_HELDOUT_SEEDS``, ``--split heldout3``
 ``THIRD_HELDOUT_SEEDS``, ``--split heldout4`` ``FOURTH_HELDOUT_SEEDS``, ``--split heldout5``
-``FIFTH_HELDOUT_SEEDS``, ``--split heldout6`` ``SIXTH_HELDOUT_SEEDS`` and ``--split heldout7``
-``SEVENTH_HELDOUT_SEEDS``
+``FIFTH_HELDOUT_SEEDS``, ``--split heldout6`` ``SIXTH_HELDOUT_SEEDS``, ``--split heldout7``
+``SEVENTH_HELDOUT_SEEDS`` and ``--split heldout8`` ``EIGHTH_HELDOUT_SEEDS``
 (:mod:`featmap.simulation.splits`), which must never be used while tuning: run them only to report how
 final defaults generalise. ``--split tuning --seeds`` also takes any other seed that is not
 held out (a probe world, e.g. one chosen by the settings of a held-out world that misses). Each drive is simulated on first use into
 ``data/sim/<split>/procedural_<seed>`` with per-scan ground truth (``truth/observations.npz``).
 
-The default covers every frame of every world of the split (31 tuning or seven times 10 held-out worlds of
-115-260 scans at 10 Hz: 6147, 2198, 2063, 2110, 2155, 2139 and 2150 scans for the first six; the seventh's count is in its table). First use simulates them (10-100 s and 0.1-0.5 GB per
+The default covers every frame of every world of the split (31 tuning or eight times 10 held-out worlds of
+115-260 scans at 10 Hz: 6147, 2198, 2063, 2110, 2155, 2139 and 2150 scans for the first six; the later sets' counts are in their tables). First use simulates them (10-100 s and 0.1-0.5 GB per
 world), and so does any change to the generator or to the simulator's code. With an empty cache nearly
 all of the run is extraction (the speed is printed); a re-run that changes only fusion settings takes
 about a minute for the tuning split (61 s on 2026-12-03, all three methods).

@@ -73,7 +73,7 @@ HELDOUT_SPLIT_NAMES = tuple(HELDOUT_SPLITS)
 """Every held-out split has a generalization step and (but the first, whose step also runs its CARMEN log)
 a pose step."""
 
-DRAWN_FOLIAGE_SPLITS = ("heldout5", "heldout6", "heldout7")
+DRAWN_FOLIAGE_SPLITS = ("heldout5", "heldout6", "heldout7", "heldout8")
 """The held-out splits also run with drawn porous foliage (``--foliage drawn``): every split since the fifth."""
 
 STEPS = (

@@ -87,12 +87,20 @@ SEVENTH_HELDOUT_SEEDS: tuple[int, ...] = (7161, 7162, 7163, 7164, 7165, 7166, 71
 """The seventh held-out worlds, drawn in order on 2026-12-05 (the next ten seeds after
 :data:`SIXTH_HELDOUT_SEEDS`), fixed before anything ran on them, and first run with extractor version 15
 and ``coarse_end_factor`` 2.0, as the generator makes them and with porous foliage drawn per crown and
-hedge (``--split heldout7 [--foliage drawn]``). The same rules as :data:`HELDOUT_SEEDS`."""
+hedge (``--split heldout7 [--foliage drawn]``). The same rules as :data:`HELDOUT_SEEDS`. The fused-map
+option ``fusion.proposed.coarse_gap_m`` was adopted (2026-12-06, chosen on the tuning and probe worlds)
+after these figures were seen: :data:`EIGHTH_HELDOUT_SEEDS` is the unspent check."""
+
+EIGHTH_HELDOUT_SEEDS: tuple[int, ...] = (7171, 7172, 7173, 7174, 7175, 7176, 7177, 7178, 7179, 7180)
+"""The eighth held-out worlds, drawn in order on 2026-12-06 (the next ten seeds after
+:data:`SEVENTH_HELDOUT_SEEDS`), fixed before anything ran on them, and first run with extractor version 15,
+``coarse_end_factor`` 2.0 and ``coarse_gap_m`` 2.0, as the generator makes them and with porous foliage
+drawn per crown and hedge (``--split heldout8 [--foliage drawn]``). The same rules as :data:`HELDOUT_SEEDS`."""
 
 HELDOUT_SPLITS: dict[str, tuple[int, ...]] = {"heldout": HELDOUT_SEEDS, "heldout2": SECOND_HELDOUT_SEEDS,
                                                "heldout3": THIRD_HELDOUT_SEEDS, "heldout4": FOURTH_HELDOUT_SEEDS,
                                                "heldout5": FIFTH_HELDOUT_SEEDS, "heldout6": SIXTH_HELDOUT_SEEDS,
-                                               "heldout7": SEVENTH_HELDOUT_SEEDS}
+                                               "heldout7": SEVENTH_HELDOUT_SEEDS, "heldout8": EIGHTH_HELDOUT_SEEDS}
 """The held-out splits by name."""
 
 SPLITS: dict[str, tuple[int, ...]] = {"tuning": TUNING_SEEDS, **HELDOUT_SPLITS}

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 
 from featmap.simulation import simulate
-from featmap.simulation.splits import (FIFTH_HELDOUT_SEEDS, FOURTH_HELDOUT_SEEDS, HELDOUT_SEEDS, HELDOUT_SPLITS,
+from featmap.simulation.splits import (EIGHTH_HELDOUT_SEEDS, FIFTH_HELDOUT_SEEDS, FOURTH_HELDOUT_SEEDS, HELDOUT_SEEDS, HELDOUT_SPLITS,
                                        PROBE_SEEDS, SECOND_HELDOUT_SEEDS, SEVENTH_HELDOUT_SEEDS, SIXTH_HELDOUT_SEEDS,
                                        THIRD_HELDOUT_SEEDS, TUNING_SEEDS,
                                        held_out_seeds, split_seeds)
@@ -13,7 +13,7 @@ from featmap.simulation.splits import (FIFTH_HELDOUT_SEEDS, FOURTH_HELDOUT_SEEDS
 
 def test_tuning_probe_and_heldout_seeds_are_apart():
     sets = (HELDOUT_SEEDS, SECOND_HELDOUT_SEEDS, THIRD_HELDOUT_SEEDS, FOURTH_HELDOUT_SEEDS, FIFTH_HELDOUT_SEEDS,
-            SIXTH_HELDOUT_SEEDS, SEVENTH_HELDOUT_SEEDS)
+            SIXTH_HELDOUT_SEEDS, SEVENTH_HELDOUT_SEEDS, EIGHTH_HELDOUT_SEEDS)
     assert all(len(seeds) >= 8 for seeds in sets) and len(TUNING_SEEDS) >= 4
     assert sum(len(seeds) for seeds in sets) == len(held_out_seeds())         # no seed in two held-out sets
     assert held_out_seeds() == set().union(*sets)
@@ -21,7 +21,7 @@ def test_tuning_probe_and_heldout_seeds_are_apart():
     assert not set(PROBE_SEEDS) & (set(TUNING_SEEDS) | held_out_seeds())   # looked into: never held out
     assert split_seeds("tuning") == TUNING_SEEDS
     assert all(split_seeds(name) == seeds for name, seeds in HELDOUT_SPLITS.items())
-    with pytest.raises(ValueError, match="unknown split 'test'; allowed: tuning, heldout, heldout2, heldout3, heldout4, heldout5, heldout6, heldout7"):
+    with pytest.raises(ValueError, match="unknown split 'test'; allowed: tuning, heldout, heldout2, heldout3, heldout4, heldout5, heldout6, heldout7, heldout8"):
         split_seeds("test")
 
 
