@@ -166,6 +166,12 @@ class SupportRule:
             return None
         return segment_column("max_gap", max_gap, len(segments)) >= self.coarse_gap_m
 
+    @property
+    def coarse_clause_acts(self) -> bool:
+        """Whether ``coarse_gap_m`` can change which clusters are kept: a coarse view only loses its length,
+        so the clause acts through the length rule (``min_length_m``) or not at all."""
+        return self.coarse_gap_m is not None and self.min_length_m is not None
+
     def views(self, segments: np.ndarray, rms: np.ndarray | None, max_gap: np.ndarray | None) -> SupportViews:
         """The rule's clean and coarse views of (N, 4) world-frame ``segments`` from the extraction's (N,)
         ``rms`` and ``max_gap`` columns (metres, each None when absent)."""

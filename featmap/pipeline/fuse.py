@@ -50,7 +50,7 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
     if max_gap is None and len(table):
         idle = ["fusion.refine.resolved_gap_m cuts nothing"] if config.refine.resolved_gap_m > 0 else []
         idle += [f"fusion.{name}.coarse_gap_m finds no coarse view" for name, rule in _support_rules(methods, config).items()
-                 if rule.coarse_gap_m is not None]
+                 if rule.coarse_clause_acts]
         if idle:
             reporter.warning("the segments have no max_gap column (their extractor does not measure it), so "
                              + " and ".join(idle))

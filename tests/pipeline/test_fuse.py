@@ -65,6 +65,11 @@ def test_fuse_without_a_max_gap_column_names_the_settings_it_idles(tmp_path):
     res = runner.invoke(app, ["fuse", str(seg), "--method", "proposed", "--out", str(tmp_path / "b"),
                               "--set", "fusion.proposed.coarse_gap_m=2.0", "--set", "fusion.refine.resolved_gap_m=0"])
     assert res.exit_code == 0 and "fusion.proposed.coarse_gap_m finds no coarse view" in res.output
+    # without the length rule (the paper's count rule) the clause could not act anyway: nothing to warn of
+    res = runner.invoke(app, ["fuse", str(seg), "--method", "proposed", "--out", str(tmp_path / "c"),
+                              "--set", "fusion.proposed.coarse_gap_m=2.0", "--set", "fusion.refine.resolved_gap_m=0",
+                              "--set", "fusion.proposed.min_support_length_m=null"])
+    assert res.exit_code == 0 and "no max_gap column" not in res.output
     assert "resolved_gap_m" not in res.output
 
 
