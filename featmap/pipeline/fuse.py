@@ -39,17 +39,17 @@ def warm_up(methods: list[str]) -> float:
 def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig,  # type: ignore[valid-type]
                  reporter: Reporter = NullReporter()) -> list[MethodRun]:
     """Fuse ``table`` with every method in ``methods`` (corner optimisation included), timing each."""
+    rules = _support_rules(methods, config)
     rms = table.extra.get("rms")
     if rms is None and len(table):
-        off = [f"fusion.{name}.clean_rms_ratio" for name, rule in _support_rules(methods, config).items()
-               if rule.clean_rms_ratio is not None]
+        off = [f"fusion.{name}.clean_rms_ratio" for name, rule in rules.items() if rule.clean_rms_ratio is not None]
         if off:
             reporter.warning(f"the segments have no rms column, so no segment counts as a clean view ({', '.join(off)} "
                              "has nothing to compare): small clusters are kept by count and length only")
     max_gap = table.extra.get("max_gap")
     if max_gap is None and len(table):
         idle = ["fusion.refine.resolved_gap_m cuts nothing"] if config.refine.resolved_gap_m > 0 else []
-        idle += [f"fusion.{name}.coarse_gap_m finds no coarse view" for name, rule in _support_rules(methods, config).items()
+        idle += [f"fusion.{name}.coarse_gap_m finds no coarse view" for name, rule in rules.items()
                  if rule.coarse_clause_acts]
         if idle:
             reporter.warning("the segments have no max_gap column (their extractor does not measure it), so "
