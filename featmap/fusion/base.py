@@ -12,6 +12,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from featmap.config import Section
+from featmap.fusion.visibility import seen_share
 from featmap.geometry import as_segments, segment_lengths
 
 MIN_SEGMENT_LENGTH_M = 1e-6
@@ -91,15 +92,39 @@ class SupportViews:
         clean: (N,) bool, the clean views (:meth:`SupportRule.clean_views`: one keeps its cluster), or None.
         coarse: (N,) bool, the coarse views (:meth:`SupportRule.coarse_views`: members that cover no
             length), or None.
+        sensor_xy: (N, 2) where the sensor stood when each segment's scan was taken (world frame, metres),
+            for the visibility clause (:func:`featmap.fusion.visibility.seen_share`), or None.
     """
 
     clean: np.ndarray | None = None
     coarse: np.ndarray | None = None
+    sensor_xy: np.ndarray | None = None
 
     def subset(self, idx: np.ndarray) -> "SupportViews":
         """The views of the segments ``idx`` (K,) (indices into the N)."""
-        return SupportViews(None if self.clean is None else self.clean[idx],
-                            None if self.coarse is None else self.coarse[idx])
+        return SupportViews(*(None if part is None else part[idx]
+                              for part in (self.clean, self.coarse, self.sensor_xy)))
+
+    def moved(self, origin: np.ndarray) -> "SupportViews":
+        """The same views with the sensor positions in a frame whose origin is ``origin`` (2,) (the working
+        frame the methods fuse in, :func:`featmap.fusion.registry.working_origin`)."""
+        if self.sensor_xy is None:
+            return self
+        return SupportViews(self.clean, self.coarse, self.sensor_xy - np.asarray(origin, dtype=float))
+
+    def seen(self, lines: Callable[[], np.ndarray], labels: np.ndarray, scan: np.ndarray
+             ) -> Callable[[np.ndarray], np.ndarray] | None:
+        """For :meth:`SupportRule.keep`: given the (C,) clusters kept so far, the share of the scans that
+        could see each other cluster's line that saw it (:func:`~featmap.fusion.visibility.seen_share`, the
+        kept lines hiding what lies behind them). ``lines()`` gives the (C, 4) fitted lines, ``labels`` (N,)
+        each segment's cluster, ``scan`` (N,) its scan. None without sensor positions."""
+        if self.sensor_xy is None:
+            return None
+
+        def share(kept: np.ndarray) -> np.ndarray:
+            fitted = lines()
+            return seen_share(fitted, labels, scan, self.sensor_xy, ~kept, fitted[kept])
+        return share
 
     def clean_members(self, labels: np.ndarray, n_clusters: int) -> np.ndarray | None:
         """(C,) how many clean views each of ``n_clusters`` clusters has, from the (N,) cluster label of
@@ -123,7 +148,10 @@ class SupportRule:
     view among their members (:meth:`clean_views`: a segment much thinner than the input's typical
     wall is a plane seen well, not clutter). With ``coarse_gap_m`` set, a coarse view (:meth:`coarse_views`:
     returns that far apart along it) counts as a member but covers no length: a line drawn between a
-    few columns metres apart is no evidence that a wall spans them."""
+    few columns metres apart is no evidence that a wall spans them. With ``visible_share`` set, a smaller
+    cluster is also kept when at least that share of the scans that could see its line saw it
+    (:mod:`featmap.fusion.visibility`: a wall seen through a gap by the only scans that could see it, not a
+    crown extracted by two of forty scans)."""
 
     min_support: int = 1
     min_length_m: Optional[float] = None
@@ -131,6 +159,7 @@ class SupportRule:
     clean_rms_ratio: Optional[float] = None
     clean_min_length_m: float = 0.0
     coarse_gap_m: Optional[float] = None
+    visible_share: Optional[float] = None
 
     def clean_views(self, segments: np.ndarray, rms: np.ndarray | None) -> np.ndarray | None:
         """(N,) True for the segments that are evidence of a wall on their own: at least
@@ -172,16 +201,27 @@ class SupportRule:
         so the clause acts through the length rule (``min_length_m``) or not at all."""
         return self.coarse_gap_m is not None and self.min_length_m is not None
 
-    def views(self, segments: np.ndarray, rms: np.ndarray | None, max_gap: np.ndarray | None) -> SupportViews:
+    def views(self, segments: np.ndarray, rms: np.ndarray | None, max_gap: np.ndarray | None,
+              sensor_xy: np.ndarray | None = None) -> SupportViews:
         """The rule's clean and coarse views of (N, 4) world-frame ``segments`` from the extraction's (N,)
-        ``rms`` and ``max_gap`` columns (metres, each None when absent)."""
-        return SupportViews(self.clean_views(segments, rms), self.coarse_views(segments, max_gap))
+        ``rms`` and ``max_gap`` columns (metres, each None when absent), and the (N, 2) ``sensor_xy``
+        (where each segment's scan was taken) when the rule has a visibility clause."""
+        if self.visible_share is None or sensor_xy is None:
+            sensor_xy = None
+        else:
+            sensor_xy = np.asarray(sensor_xy, dtype=float).reshape(-1, 2)
+            if len(sensor_xy) != len(segments):
+                raise ValueError(f"sensor_xy has {len(sensor_xy)} entries for {len(segments)} segments")
+        return SupportViews(self.clean_views(segments, rms), self.coarse_views(segments, max_gap), sensor_xy)
 
     def keep(self, members: np.ndarray, covered: Callable[[], np.ndarray],
-             clean_members: np.ndarray | None = None) -> np.ndarray:
+             clean_members: np.ndarray | None = None,
+             seen: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
         """(C,) kept clusters from their (C,) member counts; ``covered()`` gives each one's covered
         length (C,) (called only when the length rule is needed); ``clean_members`` (C,): how many of each
-        cluster's members are clean views (:meth:`clean_views`); one keeps the cluster."""
+        cluster's members are clean views (:meth:`clean_views`); one keeps the cluster; ``seen(kept)``
+        (:meth:`SupportViews.seen`) gives the share of the scans able to see each cluster not kept by the
+        other clauses that saw it (called only when the visibility clause is set and needed)."""
         kept = members >= self.min_support
         if self.min_length_m is not None and not kept.all():
             length = covered()
@@ -189,6 +229,9 @@ class SupportRule:
             kept |= (length >= self.min_length_m) & ((members >= 2) | (length >= single))
         if clean_members is not None:
             kept |= clean_members > 0
+        if self.visible_share is not None and seen is not None and not kept.all():
+            with np.errstate(invalid="ignore"):
+                kept |= seen(kept) >= self.visible_share
         return kept
 
 

@@ -14,7 +14,7 @@ each one.
 Why it is the offline map: the link forest's components and first-link scans do not depend on the grid
 (see :mod:`featmap.fusion.link_forest`), and the pairs whose criteria lie within rounding of a threshold
 are decided with numpy as offline. So ``fused()`` equals ``fuse("proposed", segments, scan, config,
-rms=rms, max_gap=max_gap)`` of the same segments (scans numbered in the order they were added) bit for bit, whenever both
+rms=rms, max_gap=max_gap, sensor_xy=sensor_xy)`` of the same segments (scans numbered in the order they were added) bit for bit, whenever both
 work in the same frame: the online fusion fixes its working origin (a whole-kilometre point,
 :func:`featmap.fusion.registry.working_origin`) from the first scan with segments, the offline one from
 all segments, and both are the frame's origin for a map within 500 m of it. Elsewhere the two differ
@@ -54,6 +54,7 @@ class OnlineFusion:
         self._scans: list[np.ndarray] = []          # per scan: (K, 4) segments as given
         self._rms: list[np.ndarray | None] = []
         self._max_gap: list[np.ndarray | None] = []
+        self._sensor_xy: list[np.ndarray | None] = []
         self._valid: list[np.ndarray] = []
         self._n = 0                                 # valid segments so far (the kernel's indices 0 .. n-1)
         self._cell_size: float | None = None        # the grid, fixed by the first valid segments
@@ -86,9 +87,13 @@ class OnlineFusion:
         """(N,) every segment's ``max_gap`` column so far, or None when a scan came without."""
         return _joined(self._max_gap)
 
+    def sensor_xy(self) -> np.ndarray | None:
+        """(N, 2) where the sensor stood for every segment so far, or None when a scan came without."""
+        return _joined(self._sensor_xy)
+
     # --- one scan in -----------------------------------------------------------------------------------
 
-    def add_scan(self, segments, rms=None, max_gap=None) -> int:
+    def add_scan(self, segments, rms=None, max_gap=None, sensor_xy=None) -> int:
         """Link one scan's segments to those of the scans before it; returns the scan's index.
 
         Args:
@@ -97,6 +102,8 @@ class OnlineFusion:
                 counts as a clean view in :meth:`fused`, as offline without an rms column).
             max_gap: (K,) each segment's longest stretch between consecutive returns (metres), or None
                 (then ``fusion.refine.resolved_gap_m`` cuts nothing in :meth:`fused`, as offline).
+            sensor_xy: (2,) where the sensor stood when the scan was taken (world frame, metres), or None
+                (then the visibility clause ``visible_share`` keeps nothing in :meth:`fused`, as offline).
         Raises:
             ValueError: a NaN or infinite coordinate, ``rms`` or ``max_gap`` of another length, or a segment
                 farther than ``MAX_MAP_SPAN_M`` from the first ones (nothing of the scan is kept then).
@@ -122,6 +129,8 @@ class OnlineFusion:
         self._scans.append(segments)
         self._rms.append(rms)
         self._max_gap.append(max_gap)
+        self._sensor_xy.append(None if sensor_xy is None else
+                               np.tile(np.asarray(sensor_xy, dtype=float).reshape(2), (len(segments), 1)))
         self._valid.append(valid)
         if keys is not None:
             self._link(new, keys)
@@ -221,13 +230,13 @@ class OnlineFusion:
 
     def fused(self) -> FusionResult:
         """The fused map of every scan so far (what ``fuse("proposed", *self.segments()[:2], config,
-        rms=..., max_gap=...)`` gives; see the module docstring). Labels index the segments of :meth:`segments`."""
+        rms=..., max_gap=..., sensor_xy=...)`` gives; see the module docstring). Labels index the segments of :meth:`segments`."""
         segments, scan, rms = self.segments()
         origin = self.origin if self.origin is not None else np.zeros(2)
         valid = np.concatenate(self._valid) if self._valid else np.zeros(0, bool)
         rule = support_rule(self.section)
         max_gap = self.max_gap()
-        views = rule.views(segments, rms, max_gap)
+        views = rule.views(segments, rms, max_gap, self.sensor_xy()).moved(origin)
         i, j = self.links()
         result = fuse_links(segments - np.tile(origin, 2), scan, valid, i, j, self.section, views)
         return finish_fusion(result, segments, scan, origin, self.config, rule, views, max_gap)

@@ -21,6 +21,8 @@ about linearly with the number of segments for a map of bounded density.
 
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass
 from typing import Callable, Literal, Optional
 
@@ -52,6 +54,7 @@ class ProposedConfig(Section):
     clean_rms_ratio: Optional[float] = Field(0.5, gt=0, description="also keep smaller clusters with a clean view: a member whose fit rms is at most this times the median of all segments' (the extraction's rms column; null = off) ...")
     clean_min_length_m: float = Field(1.4, ge=0, description="... and that is at least this long")
     coarse_gap_m: Optional[float] = Field(2.0, gt=0, description="a member whose returns lie this far apart along it (the extraction's max_gap column) counts toward min_support but covers no length for min_support_length_m and min_single_length_m (null = off)")
+    visible_share: Optional[float] = Field(None, gt=0, le=1, description="also keep smaller clusters that at least this share of the scans able to see their line saw (the sensor_x / sensor_y columns; a wall seen through a gap by the only scans that could see it, not a tree crown extracted by two of forty scans; null = off; measured in docs/results.md, not adopted)")
     fit_weighting: Literal["length", "none"] = Field("length", description="weight of each member's endpoints in the TLS fit")
 
 
@@ -264,13 +267,17 @@ def fuse_links(segments: np.ndarray, scan: np.ndarray, valid: np.ndarray, i: np.
     groups, sizes = cluster_segments(len(seg), i, j, sc, seg)
     views = views.subset(idx)
 
+    @functools.cache
+    def lines() -> np.ndarray:
+        return fit_clusters(seg, groups, len(sizes), segment_lengths(seg))
+
     def covered() -> np.ndarray:
         # Few views of a wall still make it a wall when they cover enough of one line.
         small = sizes[groups] < config.min_support
-        lines = fit_clusters(seg, groups, len(sizes), segment_lengths(seg))
-        return observed_length(lines, seg, views.covering(np.where(small, groups, -1)))
+        return observed_length(lines(), seg, views.covering(np.where(small, groups, -1)))
 
-    kept = support_rule(config).keep(sizes, covered, views.clean_members(groups, len(sizes)))
+    kept = support_rule(config).keep(sizes, covered, views.clean_members(groups, len(sizes)),
+                                     views.seen(lines, groups, sc))
     new_id = np.full(len(sizes), -1, dtype=np.int64)
     new_id[kept] = np.arange(kept.sum())
     sub_labels = new_id[groups]
@@ -286,7 +293,8 @@ def fuse_links(segments: np.ndarray, scan: np.ndarray, valid: np.ndarray, i: np.
 def support_rule(config: ProposedConfig) -> SupportRule:
     """The support filter of the proposed method's config."""
     return SupportRule(config.min_support, config.min_support_length_m, config.min_single_length_m,
-                       config.clean_rms_ratio, config.clean_min_length_m, config.coarse_gap_m)
+                       config.clean_rms_ratio, config.clean_min_length_m, config.coarse_gap_m,
+                       config.visible_share)
 
 
 METHOD = FusionMethod(name="proposed", title="Proposed (three criteria)", color="#d62728", linestyle="-",

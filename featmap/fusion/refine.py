@@ -440,7 +440,7 @@ def refine(result: FusionResult, segments, scan, config: RefineConfig,
         members = np.bincount(labels[labels >= 0], minlength=len(fused))
         covering = views.covering(labels)
         keep = rule.keep(members, lambda: observed_length(fused, segments, covering),
-                         views.clean_members(labels, len(fused)))
+                         views.clean_members(labels, len(fused)), views.seen(lambda: fused, labels, scan))
         stats["dropped"] = int((~keep).sum())
         remap = np.full(len(fused), -1, dtype=np.int64)
         remap[keep] = np.arange(keep.sum())

@@ -83,7 +83,8 @@ def prepare_method(name: str) -> None:
 
 def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig(),  # type: ignore[valid-type]
          progress: Callable[[int, int], None] | None = None,
-         rms: np.ndarray | None = None, max_gap: np.ndarray | None = None) -> FusionResult:
+         rms: np.ndarray | None = None, max_gap: np.ndarray | None = None,
+         sensor_xy: np.ndarray | None = None) -> FusionResult:
     """Run method ``name`` with its section of ``config`` (the ``fusion:`` section), then the shared
     refinement (``fusion.refine``: consistent clusters, gap splitting) and corner optimisation.
 
@@ -95,6 +96,9 @@ def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig(),  # ty
             or None; a support rule with a clean-view clause needs it (without it no view is clean).
         max_gap: (N,) each segment's longest stretch between consecutive returns (metres; the ``max_gap``
             column), or None; ``fusion.refine.resolved_gap_m`` needs it (without it that split is off).
+        sensor_xy: (N, 2) where the sensor stood when each segment's scan was taken (world frame, metres;
+            the ``sensor_x`` / ``sensor_y`` columns, :func:`featmap.fusion.visibility.sensor_xy_column`), or
+            None; a support rule with a visibility clause (``visible_share``) needs it.
     """
     method = get_method(name)
     segments = as_segments(segments)
@@ -106,7 +110,7 @@ def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig(),  # ty
         result = method.fuse(segments - shift, scan, section, progress=progress)
     else:
         rule = method.support_rule(section)
-        views = rule.views(segments, rms, max_gap)
+        views = rule.views(segments, rms, max_gap, sensor_xy).moved(origin)
         result = method.fuse(segments - shift, scan, section, progress=progress, views=views)
     return finish_fusion(result, segments, scan, origin, config, rule, views, max_gap)
 

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from featmap.fusion import FusionConfig, FusionResult, fuse, get_method, prepare_method
+from featmap.fusion.visibility import sensor_xy_column
 from featmap.io.atomic import atomic_write_text
 from featmap.io.segments_csv import SegmentTable, write_fused_csv
 from featmap.reporting import NullReporter, Reporter
@@ -54,12 +55,18 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
         if idle:
             reporter.warning("the segments have no max_gap column (their extractor does not measure it), so "
                              + " and ".join(idle))
+    sensor_xy = sensor_xy_column(table.extra, len(table))
+    if sensor_xy is None and len(table):
+        blind = [f"fusion.{name}.visible_share" for name, rule in rules.items() if rule.visible_share is not None]
+        if blind:
+            reporter.warning(f"the segments have no sensor_x / sensor_y columns, so {', '.join(blind)} keeps "
+                             "nothing (no scan position to see from)")
     runs = []
     if len(table) < PROGRESS_MIN_SEGMENTS:
         with reporter.progress("fusing", len(methods)) as advance:
             for name in methods:
                 start = time.perf_counter()
-                result = fuse(name, table.segments, table.scan, config, rms=rms, max_gap=max_gap)
+                result = fuse(name, table.segments, table.scan, config, rms=rms, max_gap=max_gap, sensor_xy=sensor_xy)
                 runs.append(MethodRun(name, result, time.perf_counter() - start))
                 advance(1)
     else:
@@ -73,7 +80,8 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
                     shown[0] = percent
 
                 start = time.perf_counter()
-                result = fuse(name, table.segments, table.scan, config, progress, rms=rms, max_gap=max_gap)
+                result = fuse(name, table.segments, table.scan, config, progress, rms=rms, max_gap=max_gap,
+                              sensor_xy=sensor_xy)
                 runs.append(MethodRun(name, result, time.perf_counter() - start))
     for run in runs:
         if len(run.result) == 0 and len(table) > 0:

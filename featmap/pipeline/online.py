@@ -146,7 +146,7 @@ def map_online(source: ScanSource, config: FeatmapConfig, every: int, reporter: 
             if refiner is not None:
                 T = refiner.decided_pose(k)
             columns = world_fields(segments, T)
-            online.add_scan(segments_to_world(segments, T), columns["rms"], columns.get("max_gap"))
+            online.add_scan(segments_to_world(segments, T), columns["rms"], columns.get("max_gap"), T[:2, 3])
 
     stamps, poses, rows = [], [], []
     result = online.fused()

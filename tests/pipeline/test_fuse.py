@@ -73,6 +73,23 @@ def test_fuse_without_a_max_gap_column_names_the_settings_it_idles(tmp_path):
     assert "resolved_gap_m" not in res.output
 
 
+def test_fuse_reads_the_sensor_columns_for_the_visibility_clause_and_warns_without_them(tmp_path):
+    """A wall seen through a gap by the only scans that could see it is kept with visible_share from a
+    segments.csv that has the sensor_x / sensor_y columns; without them it is dropped and the user is told."""
+    from tests.fusion.test_visibility import _gap_scene
+
+    segs, scan, xy = _gap_scene()
+    counts = {}
+    for name, extra in (("with", {"sensor_x": xy[:, 0], "sensor_y": xy[:, 1]}), ("without", {})):
+        path = write_segments_csv(tmp_path / f"{name}.csv", SegmentTable(scan=scan, segments=segs, extra=extra))
+        res = runner.invoke(app, ["fuse", str(path), "--method", "proposed", "--out", str(tmp_path / name),
+                                  "--set", "fusion.proposed.visible_share=0.5"])
+        assert res.exit_code == 0, res.output
+        assert ("no sensor_x / sensor_y columns" in res.output) == (name == "without")
+        counts[name] = len(read_fused_csv(tmp_path / name / "fused_proposed.csv")[0])
+    assert counts == {"with": 3, "without": 2}
+
+
 def test_fuse_all_methods(tmp_path):
     seg = _segments_csv(tmp_path / "segments.csv")
     res = runner.invoke(app, ["fuse", str(seg), "--method", "all", "--out", str(tmp_path / "o")])

@@ -57,7 +57,7 @@ def test_a_2d_log_runs_through_the_pipeline_with_the_2d_preset(tmp_path):
         on_north = [s for s in fused if abs(s[1] - 8) < 0.05 and abs(s[3] - 8) < 0.05]
         assert on_north and all(max(s[0], s[2]) <= 5.55 or min(s[0], s[2]) >= 6.45 for s in on_north), method
     segments = read_segments_csv(out / "segments.csv")
-    assert segments.extra.keys() == {"n_points", "rms"}
+    assert segments.extra.keys() == {"n_points", "rms", "sensor_x", "sensor_y"}
     assert {10, 59} - set(segments.scan.tolist()) == {10, 59} and len(set(segments.scan.tolist())) == 58
 
 

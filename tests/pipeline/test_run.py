@@ -24,7 +24,7 @@ def test_run_writes_the_output_contract_and_scores_against_truth(run_case1, tmp_
     result = run_case1()
     out = tmp_path / "run"
     header = next(csv.reader(open(out / "segments.csv")))
-    assert header == ["scan", "x1", "y1", "x2", "y2", "n_points", "z_min", "z_max", "rms", "max_gap"]
+    assert header == ["scan", "x1", "y1", "x2", "y2", "n_points", "z_min", "z_max", "rms", "max_gap", "sensor_x", "sensor_y"]
     for m in ("proposed", "density"):
         assert next(csv.reader(open(out / f"fused_{m}.csv")))[:5] == ["x1", "y1", "x2", "y2", "support"]
         fc = json.loads((out / f"fused_{m}.geojson").read_text())
