@@ -657,6 +657,7 @@ def merged_inputs(run_dirs: list[tuple[str, str | Path]], align=None) -> MergedI
     whole so that the drives' own maps agree (:func:`featmap.refinement.drives.align_drives` on each
     drive's ``fused_<method>.csv``, the proposed method's when the drives ran it).
     """
+    from featmap.fusion.visibility import sensor_xy_column
     from featmap.geo import reproject, reproject_segments
     from featmap.io.pose_csv import read_trajectory_xy
     from featmap.io.run_metrics import GeoRecord, read_run_metrics
@@ -684,7 +685,7 @@ def merged_inputs(run_dirs: list[tuple[str, str | Path]], align=None) -> MergedI
                                   "cannot be related")
         runs = [r for r in runs if r[0] not in left_out]
     segs, scans, drive_col, drives, trajectories = [], [], [], [], {}
-    carried: dict[str, list] = {"rms": [], "max_gap": []}      # the columns the fusion reads
+    carried: dict[str, list] = {"rms": [], "max_gap": [], "sensor_x": [], "sensor_y": []}  # the columns the fusion reads
     offset = 0
     for index, (name, run_dir, m) in enumerate(runs):
         table = read_segments_csv(run_dir / "segments.csv")
@@ -693,8 +694,12 @@ def merged_inputs(run_dirs: list[tuple[str, str | Path]], align=None) -> MergedI
         segs.append(moved)
         scans.append(table.scan + offset)
         drive_col.append(np.full(len(table), index, np.int64))
+        sensor = sensor_xy_column(table.extra, len(table))
+        if sensor is not None and frame is not None:                   # where the scans were taken, moved too
+            sensor = reproject(sensor, src, frame)
+        columns = {**table.extra, **({} if sensor is None else {"sensor_x": sensor[:, 0], "sensor_y": sensor[:, 1]})}
         for column, parts in carried.items():
-            parts.append(table.extra.get(column))
+            parts.append(columns.get(column))
         truth = m.reference_path("truth", run_dir)
         drives.append(MergedDrive(name=name, run_dir=str(run_dir), scan_offset=offset, segments=len(table),
                                   geo_frame=GeoRecord(**src.to_dict()) if src is not None else None,
@@ -730,6 +735,11 @@ def merged_inputs(run_dirs: list[tuple[str, str | Path]], align=None) -> MergedI
         return replace(inputs, alignment=alignment)
     drive_index = table.extra["drive"].astype(np.int64)
     moved = replace(table, segments=alignment.segments(table.segments, drive_index))
+    sensor = sensor_xy_column(table.extra, len(table))
+    if sensor is not None:
+        for k in range(len(drives)):
+            sensor[drive_index == k] = alignment.points(sensor[drive_index == k], k)
+        moved = replace(moved, extra={**moved.extra, "sensor_x": sensor[:, 0], "sensor_y": sensor[:, 1]})
     positions = {d.name: k for k, d in enumerate(drives)}
     paths = {name: alignment.points(xy, positions[name]) for name, xy in trajectories.items()}
     drives = [d.model_copy(update={"correction": [round(float(v), 4) for v in alignment.corrections[k, :2]]

@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 from featmap.cli import app
 from tests.conftest import SIGINT_IGNORED_AT_START, untimed_metrics
 from featmap.io.batch_records import read_batch_summary, read_drive_key, read_merged_record
-from featmap.io.segments_csv import read_fused_csv
+from featmap.io.segments_csv import read_fused_csv, read_segments_csv
 
 pytest.importorskip("distributed")
 
@@ -130,7 +130,7 @@ def test_the_merged_map_fuses_walls_seen_by_several_drives_into_one(first_batch)
 def _moved_copy(run: Path, out: Path, motion: np.ndarray, about: np.ndarray) -> Path:
     """A copy of run folder ``run`` whose segments, fused maps and trajectory are moved as a whole by the
     planar ``motion`` (dx, dy, dyaw) about ``about``: a drive whose GPS was off by that much."""
-    from featmap.io.segments_csv import read_segments_csv, write_fused_csv, write_segments_csv
+    from featmap.io.segments_csv import write_fused_csv, write_segments_csv
     from featmap.refinement.base import correct_points, correct_segments
 
     shutil.copytree(run, out)
@@ -614,6 +614,25 @@ def test_a_merged_map_without_truth_is_scored_against_the_drives_scan_points(fir
     record = merge_again()
     assert record.scores == {} and "room.log" in record.unscored
     assert (tmp_path / "merged_again" / "fused_proposed.csv").exists()
+
+
+def test_the_merged_segments_carry_where_each_scan_was_taken_in_the_merged_frame(first_batch):
+    """The sensor_x / sensor_y columns (the visibility clause's) move into the merged frame with the segments:
+    each drive's lie on its own trajectory there, though the drives' local origins differ."""
+    from featmap.batch import merged_inputs
+
+    tmp, _, _, _ = first_batch
+    merged = read_merged_record(tmp / "out" / "merged" / "merged.json")
+    inputs = merged_inputs([(d.name, d.run_dir) for d in merged.drives])
+    table = inputs.table
+    sensor = np.column_stack([table.extra["sensor_x"], table.extra["sensor_y"]])
+    for k, name in enumerate(inputs.names):
+        path = inputs.trajectories[name]
+        mine = sensor[table.extra["drive"] == k]
+        nearest = np.hypot(*(mine[:, None, :] - path[None, :, :]).transpose(2, 0, 1)).min(axis=1)
+        assert len(mine) and nearest.max() < 0.5, name          # (the refined poses differ by centimetres)
+        own = read_segments_csv(Path(inputs.drives[k].run_dir) / "segments.csv").extra
+        assert k == 0 or np.abs(mine[:, 0] - own["sensor_x"]).max() > 1.0       # another origin: moved
 
 
 def test_footprints_score_the_merged_map_on_what_the_drives_saw(first_batch, tmp_path, monkeypatch):
