@@ -22,7 +22,6 @@ about linearly with the number of segments for a map of bounded density.
 from __future__ import annotations
 
 import functools
-
 from dataclasses import dataclass
 from typing import Callable, Literal, Optional
 
