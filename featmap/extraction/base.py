@@ -126,9 +126,8 @@ def segments_to_world(scan_segments: ScanSegments, T_world_sensor: np.ndarray) -
 
 def world_fields(scan_segments: ScanSegments, T_world_sensor: np.ndarray) -> dict[str, np.ndarray]:
     """Per-segment columns that go with the world-frame segments: point counts, rms, (3D) heights
-    shifted by the sensor's height in the world frame, ``max_gap`` when the extractor measures it, and
-    ``sensor_x``, ``sensor_y``: where the sensor stood in the world frame (``T_world_sensor``'s
-    translation; the fusion's visibility clause reads them). Each (K,)."""
+    shifted by the sensor's height in the world frame, and ``max_gap`` when the extractor measures it.
+    Each (K,)."""
     if scan_segments.dimension == 2:
         out = {"n_points": scan_segments.n_points, "rms": scan_segments.rms}
     else:
@@ -137,9 +136,6 @@ def world_fields(scan_segments: ScanSegments, T_world_sensor: np.ndarray) -> dic
                "z_max": scan_segments.z_max + z_off, "rms": scan_segments.rms}
     if scan_segments.max_gap is not None:
         out["max_gap"] = scan_segments.max_gap
-    k = len(scan_segments.n_points)
-    out["sensor_x"] = np.full(k, float(T_world_sensor[0, 3]))
-    out["sensor_y"] = np.full(k, float(T_world_sensor[1, 3]))
     return out
 
 

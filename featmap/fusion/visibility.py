@@ -29,8 +29,14 @@ INCIDENCE_SLACK_DEG = 5.0
 MIN_WINDOW_DEG = 60.0
 """... but in any case up to this far from head-on."""
 SENSOR_COLUMNS = ("sensor_x", "sensor_y")
-"""The per-segment columns (segments.csv, ``world_fields``) holding the world-frame position of the sensor
-when the segment's scan was taken (metres)."""
+"""The per-segment columns (segments.csv, :func:`sensor_columns`) holding the world-frame position of the
+sensor when the segment's scan was taken (metres)."""
+
+
+def sensor_columns(T_world_sensor: np.ndarray, n_segments: int) -> dict[str, np.ndarray]:
+    """The ``sensor_x``, ``sensor_y`` columns (each (K,)) of K segments of one scan: the translation of its
+    (4, 4) ``T_world_sensor``."""
+    return {name: np.full(n_segments, float(T_world_sensor[axis, 3])) for axis, name in enumerate(SENSOR_COLUMNS)}
 
 
 def sensor_xy_column(columns: Mapping[str, np.ndarray], n_segments: int) -> np.ndarray | None:

@@ -18,6 +18,7 @@ from featmap.datasets.base import ScanSource
 from featmap.errors import DatasetError
 from featmap.extraction import ExtractionConfig, ScanSegments, extractor_for, segments_to_world, world_fields
 from featmap.extraction.base import Extractor
+from featmap.fusion.visibility import sensor_columns
 from featmap.geometry import MAX_MAP_SPAN_M, spread_and_outlier
 from featmap.io.segments_csv import SegmentTable
 from featmap.pipeline.executor import Executor, SerialExecutor
@@ -56,7 +57,9 @@ class Extraction:
     slam_poses: bool = False
 
     def world_table(self, poses: np.ndarray | None = None) -> SegmentTable:
-        """Every segment in the world frame with its scan (frame number) and per-segment columns.
+        """Every segment in the world frame with its scan (frame number) and per-segment columns (the
+        extractor's :func:`~featmap.extraction.world_fields`, and ``sensor_x``, ``sensor_y``: where the sensor
+        stood, :func:`~featmap.fusion.visibility.sensor_columns`).
 
         Args:
             poses: (F, 4, 4) ``T_world_sensor`` to use instead of the source's (e.g. refined poses).
@@ -66,7 +69,7 @@ class Extraction:
         for frame, scan_segments, T in zip(self.frames, self.scans, poses):
             segs.append(segments_to_world(scan_segments, T))
             scans.append(np.full(len(scan_segments), frame, np.int64))
-            extras.append(world_fields(scan_segments, T))
+            extras.append({**world_fields(scan_segments, T), **sensor_columns(T, len(scan_segments))})
         if not segs:
             return SegmentTable(scan=np.zeros(0, np.int64), segments=np.zeros((0, 4)))
         # A scan without segments may lack a column its extractor measures on non-empty scans (max_gap).

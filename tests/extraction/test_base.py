@@ -21,15 +21,14 @@ def test_world_transform_of_a_3d_piece_moves_both_endpoints_and_heights():
     assert world[0] == pytest.approx([110.0, 62.0, 92.0, 62.0])
     fields = world_fields(_three_d(), QUARTER_TURN)
     assert fields["z_min"][0] == pytest.approx(0.3) and fields["z_max"][0] == pytest.approx(4.4)
-    assert list(fields) == ["n_points", "z_min", "z_max", "rms", "sensor_x", "sensor_y"]
-    assert (fields["sensor_x"][0], fields["sensor_y"][0]) == (100.0, 50.0)        # where the sensor stood
+    assert list(fields) == ["n_points", "z_min", "z_max", "rms"]
 
 
 def test_a_2d_scan_has_no_heights_and_stays_in_the_plane():
     two_d = ScanSegments(np.array([[1.0, 2.0, 3.0, 2.0]]), np.array([10]), np.array([0.01]))
     assert two_d.dimension == 2
     assert segments_to_world(two_d, QUARTER_TURN)[0] == pytest.approx([98.0, 51.0, 98.0, 53.0])
-    assert list(world_fields(two_d, QUARTER_TURN)) == ["n_points", "rms", "sensor_x", "sensor_y"]
+    assert list(world_fields(two_d, QUARTER_TURN)) == ["n_points", "rms"]
 
 
 def test_arrays_round_trip_and_bad_arrays_are_refused():
