@@ -95,14 +95,16 @@ def seen_share(lines: np.ndarray, labels: np.ndarray, scan: np.ndarray, sensor_x
     positions = np.asarray(sensor_xy, dtype=float)[first]                 # (S, 2), one per scan
     tree = cKDTree(positions)
     member = labels >= 0
-    member_scans = np.unique(np.column_stack([labels[member], np.searchsorted(scan_ids, scan[member])]), axis=0)
-    starts = np.searchsorted(member_scans[:, 0], np.arange(len(lines) + 1))
+    pairs = np.unique(labels[member] * len(scan_ids) + np.searchsorted(scan_ids, scan[member]))   # (cluster, scan)
+    pair_cluster, pair_scan = np.divmod(pairs, len(scan_ids))
+    starts = np.searchsorted(pair_cluster, np.arange(len(lines) + 1))
     blockers = np.asarray(blockers, dtype=float).reshape(-1, 4)
     blocker_lo = np.minimum(blockers[:, :2], blockers[:, 2:])
     blocker_hi = np.maximum(blockers[:, :2], blockers[:, 2:])
     cos_floor = np.cos(np.radians(MIN_WINDOW_DEG))
+    is_member = np.zeros(len(positions), dtype=bool)          # of the cluster at hand (set and reset per cluster)
     for c in todo:
-        seen_by = member_scans[starts[c]:starts[c + 1], 1]
+        seen_by = pair_scan[starts[c]:starts[c + 1]]
         direction = lines[c, 2:] - lines[c, :2]
         length = float(np.hypot(*direction))
         if len(seen_by) == 0 or length == 0:
@@ -126,6 +128,8 @@ def seen_share(lines: np.ndarray, labels: np.ndarray, scan: np.ndarray, sensor_x
         could = near[(facing > 0) & (facing >= cos_limit * dist)]
         in_box = ((blocker_hi >= mid - reach) & (blocker_lo <= mid + reach)).all(axis=1)
         visible = could[~_crosses_any(positions[could], mid, blockers[in_box])]
-        saw = np.isin(visible, seen_by).sum()
+        is_member[seen_by] = True
+        saw = int(is_member[visible].sum())
+        is_member[seen_by] = False
         out[c] = saw / len(visible) if saw else 0.0
     return out
