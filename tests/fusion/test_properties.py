@@ -108,6 +108,27 @@ def test_clean_views_keep_the_map_independent_of_row_order(data, seed):
     assert (a.labels >= 0).sum() >= (fuse("proposed", segments, scan, CONFIG).labels >= 0).sum()
 
 
+@SETTINGS
+@given(data=segment_sets(), seed=st.integers(0, 1000), dx=st.floats(-1e6, 1e6), dy=st.floats(-1e6, 1e6))
+def test_the_visibility_clause_keeps_the_map_independent_of_row_order_and_translation(data, seed, dx, dy):
+    """With sensor positions (one random place per scan) and visible_share, the proposed method's map does not
+    depend on the order of the rows nor on a global translation of segments and positions together."""
+    segments, scan = data
+    rng = np.random.default_rng(seed)
+    place = rng.uniform(-80, 80, (int(scan.max()) + 1, 2))
+    xy = place[scan]
+    visible = FusionConfig.model_validate({"proposed": {"min_support": 2, "visible_share": 0.5}})
+    order = rng.permutation(len(segments))
+    a = fuse("proposed", segments, scan, visible, sensor_xy=xy)
+    b = fuse("proposed", segments[order], scan[order], visible, sensor_xy=xy[order])
+    assert len(a) == len(b)
+    assert np.abs(_canonical(a.segments.copy()) - _canonical(b.segments.copy())).max(initial=0.0) < 1e-3
+    shift = np.array([dx, dy])
+    c = fuse("proposed", segments + np.tile(shift, 2), scan, visible, sensor_xy=xy + shift)
+    assert len(c) == len(a)
+    assert np.abs(_canonical(a.segments.copy()) - _canonical(c.segments - np.tile(shift, 2))).max(initial=0.0) < 1e-3
+
+
 def test_clean_views_keep_a_short_end_segment_found_by_hypothesis():
     """A counterexample hypothesis found (random search, 2026-12-02) to the last assertion of
     ``test_clean_views_keep_the_map_independent_of_row_order``: segment 6 (3.5 m, at the wall's end, 3.4 cm
