@@ -87,7 +87,7 @@ from featmap.evaluation.observation_metrics import (FAR_VIEW_M, FEW_VIEWS, GRAZI
                                                    UncoveredStretches, fusion_losses, match_observations,
                                                    truth_from_observations, uncovered_stretches, union_coverage)
 from featmap.fusion import fuse
-from featmap.fusion.visibility import sensor_xy_column
+from featmap.fusion.registry import fuse_columns
 from featmap.io.segments_csv import SegmentTable
 from featmap.io.sim_truth import read_observations
 from featmap.pipeline import SegmentStore, load_config
@@ -218,8 +218,7 @@ def score_world(root: Path, frames: list[int], table: SegmentTable, config, meth
         out["losses"] = uncovered_stretches(segments, truth, obs_c, poses)
     for name in methods:
         start = time.perf_counter()
-        result = fuse(name, segments, scan, config.fusion, rms=table.extra.get("rms"), max_gap=table.extra.get("max_gap"),
-                      sensor_xy=sensor_xy_column(table.extra, len(table)))
+        result = fuse(name, segments, scan, config.fusion, **fuse_columns(table.extra, len(table)))
         seconds = time.perf_counter() - start
         metrics = truth_metrics(result.segments, truth)
         metrics["fusion_seconds"] = seconds

@@ -26,7 +26,7 @@ from featmap.console import RichReporter
 from featmap.datasets import KittiRawDataset
 from featmap.evaluation import truth_metrics
 from featmap.fusion import FUSION_METHODS, fuse, prepare_method
-from featmap.fusion.visibility import sensor_xy_column
+from featmap.fusion.registry import fuse_columns
 from featmap.io.markdown import markdown_table
 from featmap.io.run_metrics import read_run_metrics
 from featmap.outputs import tiles_of
@@ -80,17 +80,10 @@ def fusion_times(run_dir: Path, repeats: int = 7) -> dict[str, float]:
         times = []
         for _ in range(repeats):
             start = time.perf_counter()
-            fuse(m, run.segments.segments, run.segments.scan, run.config.fusion, **_columns(run))
+            fuse(m, run.segments.segments, run.segments.scan, run.config.fusion, **fuse_columns(run.segments.extra, len(run.segments)))
             times.append(time.perf_counter() - start)
         out[m] = statistics.median(times)
     return out
-
-
-def _columns(run) -> dict:
-    """The per-segment columns of a run's segments that :func:`featmap.fusion.fuse` reads."""
-    extra = run.segments.extra
-    return {"rms": extra.get("rms"), "max_gap": extra.get("max_gap"),
-            "sensor_xy": sensor_xy_column(extra, len(run.segments))}
 
 
 def corner_modes(run_dir: Path) -> dict:
@@ -98,7 +91,7 @@ def corner_modes(run_dir: Path) -> dict:
     out = {}
     for mode in ("none", "midpoint", "intersection"):
         cfg = load_config(None, [f"fusion.corners.mode={mode}"])
-        res = fuse("proposed", run.segments.segments, run.segments.scan, cfg.fusion, **_columns(run))
+        res = fuse("proposed", run.segments.segments, run.segments.scan, cfg.fusion, **fuse_columns(run.segments.extra, len(run.segments)))
         m = truth_metrics(res.segments, run.truth)
         out[mode] = {"corner_err_cm": m["corner_err_cm"], "vertex_error_sum_m": m["vertex_error_sum_m"],
                      "precision": m["precision"], "recall": m["recall"]}

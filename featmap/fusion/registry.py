@@ -12,7 +12,7 @@ A new method is one module (its function, its config section and a ``METHOD`` en
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Callable
+from typing import Callable, Mapping
 
 import numpy as np
 from pydantic import create_model
@@ -23,6 +23,7 @@ from featmap.fusion import density, meanshift, proposed
 from featmap.fusion.base import FusionMethod, FusionResult, SupportRule, SupportViews
 from featmap.fusion.corners import CornerConfig, optimise_corners
 from featmap.fusion.refine import RefineConfig, refine
+from featmap.fusion.visibility import sensor_xy_column
 from featmap.geometry import as_segments
 
 METHODS: tuple[FusionMethod, ...] = (proposed.METHOD, meanshift.METHOD, density.METHOD)
@@ -113,6 +114,14 @@ def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig(),  # ty
         views = rule.views(segments, rms, max_gap, sensor_xy).moved(origin)
         result = method.fuse(segments - shift, scan, section, progress=progress, views=views)
     return finish_fusion(result, segments, scan, origin, config, rule, views, max_gap)
+
+
+def fuse_columns(columns: Mapping[str, np.ndarray], n_segments: int) -> dict:
+    """The keyword arguments of :func:`fuse` that N segments' per-segment columns give (a segment table's
+    ``extra``, segments.csv's columns): ``rms``, ``max_gap`` and ``sensor_xy`` (from ``sensor_x`` /
+    ``sensor_y``), each None when absent."""
+    return {"rms": columns.get("rms"), "max_gap": columns.get("max_gap"),
+            "sensor_xy": sensor_xy_column(columns, n_segments)}
 
 
 def finish_fusion(result: FusionResult, segments: np.ndarray, scan, origin: np.ndarray,

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from featmap.fusion import FusionConfig, FusionResult, fuse, get_method, prepare_method
-from featmap.fusion.visibility import sensor_xy_column
+from featmap.fusion.registry import fuse_columns
 from featmap.io.atomic import atomic_write_text
 from featmap.io.segments_csv import SegmentTable, write_fused_csv
 from featmap.reporting import NullReporter, Reporter
@@ -41,22 +41,20 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
                  reporter: Reporter = NullReporter()) -> list[MethodRun]:
     """Fuse ``table`` with every method in ``methods`` (corner optimisation included), timing each."""
     rules = _support_rules(methods, config)
-    rms = table.extra.get("rms")
-    if rms is None and len(table):
+    columns = fuse_columns(table.extra, len(table))
+    if columns["rms"] is None and len(table):
         off = [f"fusion.{name}.clean_rms_ratio" for name, rule in rules.items() if rule.clean_rms_ratio is not None]
         if off:
             reporter.warning(f"the segments have no rms column, so no segment counts as a clean view ({', '.join(off)} "
                              "has nothing to compare): small clusters are kept by count and length only")
-    max_gap = table.extra.get("max_gap")
-    if max_gap is None and len(table):
+    if columns["max_gap"] is None and len(table):
         idle = ["fusion.refine.resolved_gap_m cuts nothing"] if config.refine.resolved_gap_m > 0 else []
         idle += [f"fusion.{name}.coarse_gap_m finds no coarse view" for name, rule in rules.items()
                  if rule.coarse_clause_acts]
         if idle:
             reporter.warning("the segments have no max_gap column (their extractor does not measure it), so "
                              + " and ".join(idle))
-    sensor_xy = sensor_xy_column(table.extra, len(table))
-    if sensor_xy is None and len(table):
+    if columns["sensor_xy"] is None and len(table):
         blind = [f"fusion.{name}.visible_share" for name, rule in rules.items() if rule.visible_share is not None]
         if blind:
             reporter.warning(f"the segments have no sensor_x / sensor_y columns, so {', '.join(blind)} keeps "
@@ -66,7 +64,7 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
         with reporter.progress("fusing", len(methods)) as advance:
             for name in methods:
                 start = time.perf_counter()
-                result = fuse(name, table.segments, table.scan, config, rms=rms, max_gap=max_gap, sensor_xy=sensor_xy)
+                result = fuse(name, table.segments, table.scan, config, **columns)
                 runs.append(MethodRun(name, result, time.perf_counter() - start))
                 advance(1)
     else:
@@ -80,8 +78,7 @@ def fuse_methods(table: SegmentTable, methods: list[str], config: FusionConfig, 
                     shown[0] = percent
 
                 start = time.perf_counter()
-                result = fuse(name, table.segments, table.scan, config, progress, rms=rms, max_gap=max_gap,
-                              sensor_xy=sensor_xy)
+                result = fuse(name, table.segments, table.scan, config, progress, **columns)
                 runs.append(MethodRun(name, result, time.perf_counter() - start))
     for run in runs:
         if len(run.result) == 0 and len(table) > 0:

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from featmap.fusion import fuse
-from featmap.fusion.visibility import sensor_xy_column
+from featmap.fusion.registry import fuse_columns
 from featmap.io.atomic import atomic_file_set, atomic_write_text
 from featmap.io.segments_csv import SegmentTable
 from featmap.plotting.basemap import Tiles
@@ -331,8 +331,7 @@ def make_figures(run: FigureInputs, out: str | Path) -> list[Path]:
     """
     out = Path(out)
     results = {name: fuse(name, run.segments.segments, run.segments.scan, run.fusion,
-                          rms=run.segments.extra.get("rms"), max_gap=run.segments.extra.get("max_gap"),
-                          sensor_xy=sensor_xy_column(run.segments.extra, len(run.segments)))
+                          **fuse_columns(run.segments.extra, len(run.segments)))
                for name in run.methods}
     centres = local_map_centres(run, results)
     with atomic_file_set(out, FIGURE_FILES) as stage:
