@@ -212,6 +212,8 @@ class SupportRule:
             sensor_xy = np.asarray(sensor_xy, dtype=float).reshape(-1, 2)
             if len(sensor_xy) != len(segments):
                 raise ValueError(f"sensor_xy has {len(sensor_xy)} entries for {len(segments)} segments")
+            if not np.isfinite(sensor_xy).all():
+                raise ValueError("sensor_xy has a NaN or infinite position")
         return SupportViews(self.clean_views(segments, rms), self.coarse_views(segments, max_gap), sensor_xy)
 
     def keep(self, members: np.ndarray, covered: Callable[[], np.ndarray],

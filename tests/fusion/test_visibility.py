@@ -110,6 +110,8 @@ def test_sensor_positions_need_one_row_per_segment_and_both_columns():
     visible = FusionConfig.model_validate({"proposed": {"visible_share": 0.5}})
     with pytest.raises(ValueError, match="sensor_xy has 2 entries for 3 segments"):
         fuse("proposed", segs, np.arange(3), visible, sensor_xy=np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="sensor_xy has a NaN or infinite position"):
+        fuse("proposed", segs, np.arange(3), visible, sensor_xy=np.array([[0.0, 0.0], [np.nan, 1.0], [0.0, 0.0]]))
     assert sensor_xy_column({"sensor_x": np.zeros(3)}, 3) is None
     assert sensor_xy_column({"sensor_x": np.arange(3.0), "sensor_y": np.ones(3)}, 3).tolist() == [[0, 1], [1, 1], [2, 1]]
     with pytest.raises(ValueError, match="sensor_x / sensor_y have 3 entries for 2 segments"):
