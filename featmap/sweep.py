@@ -40,7 +40,7 @@ import itertools
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Optional
 
@@ -51,7 +51,7 @@ from featmap.config import apply_overrides, closest_key, leaf_keys, read_yaml_ma
 from featmap.errors import ConfigError, FeatmapError
 from featmap.evaluation import Evaluator, Reference
 from featmap.fusion import FUSION_METHODS, fuse
-from featmap.fusion.visibility import sensor_xy_column
+from featmap.fusion.registry import fuse_columns
 from featmap.io.atomic import atomic_file_set, atomic_write_text
 from featmap.io.segments_csv import SegmentTable
 from featmap.pipeline.config import FeatmapConfig, config_from_dict, resolve_config_path
@@ -249,17 +249,16 @@ def _score(metrics: dict) -> dict:
 
 @dataclass(frozen=True)
 class SweepInputs:
-    """What every combination is evaluated on: world-frame segments (N, 4), their scans (N,), their fit rms
-    (N,) or None, the reference (an evaluator with its prepared reference) or None, their ``max_gap``
-    column (N,) or None and their sensor positions (N, 2) (the ``sensor_x`` / ``sensor_y`` columns) or None."""
+    """What every combination is evaluated on: world-frame segments (N, 4), their scans (N,), the reference
+    (an evaluator with its prepared reference) or None, a digest of all of it, and ``columns``: the keyword
+    arguments of :func:`~featmap.fusion.fuse` their per-segment columns give
+    (:func:`~featmap.fusion.registry.fuse_columns`: ``rms``, ``max_gap``, ``sensor_xy``, each None when absent)."""
 
     segments: np.ndarray
     scan: np.ndarray
-    rms: np.ndarray | None
     reference: tuple[Evaluator, Reference] | None
     digest: str
-    max_gap: np.ndarray | None = None
-    sensor_xy: np.ndarray | None = None
+    columns: dict = field(default_factory=dict)
 
 
 def _evaluate(task: tuple[SweepInputs, str, str, dict]) -> tuple[str, dict]:
@@ -267,8 +266,7 @@ def _evaluate(task: tuple[SweepInputs, str, str, dict]) -> tuple[str, dict]:
     inputs, key, method, config_dict = task
     config = FeatmapConfig.model_validate(config_dict)
     start = time.perf_counter()
-    result = fuse(method, inputs.segments, inputs.scan, config.fusion, rms=inputs.rms, max_gap=inputs.max_gap,
-                  sensor_xy=inputs.sensor_xy)
+    result = fuse(method, inputs.segments, inputs.scan, config.fusion, **inputs.columns)
     seconds = time.perf_counter() - start
     metrics: dict = {"count": len(result)}
     if inputs.reference is not None:
@@ -400,8 +398,7 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
                 ref = Reference(footprints_truth(truth_path, frame, run_dir), str(truth_path.resolve()))
             reference = (ev, ref)
         digest = _digest(Path(spec.input).read_bytes(), _reference_content(truth_path), _reference_content(record))
-        return SweepInputs(table.segments, table.scan, table.extra.get("rms"), reference, digest,
-                           table.extra.get("max_gap"), sensor_xy_column(table.extra, len(table)))
+        return SweepInputs(table.segments, table.scan, reference, digest, fuse_columns(table.extra, len(table)))
     if spec.batch is not None:
         return _batch_inputs(Path(spec.batch), base, cache_dir)
     if spec.dataset is not None:
@@ -422,14 +419,13 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
 
 
 def _table_inputs(table: SegmentTable, reference: tuple[Evaluator, Reference] | None) -> SweepInputs:
-    """Sweep inputs from a world-frame segment table (its ``rms``, ``max_gap`` and sensor position columns,
-    when it has them, go along)."""
-    rms, max_gap = table.extra.get("rms"), table.extra.get("max_gap")
-    sensor_xy = sensor_xy_column(table.extra, len(table))
-    parts = [table.segments.tobytes(), table.scan.tobytes()] + [np.asarray(c).tobytes() for c in (rms, max_gap, sensor_xy)
+    """Sweep inputs from a world-frame segment table (the per-segment columns the fusion reads, when it has
+    them, go along: :func:`~featmap.fusion.registry.fuse_columns`)."""
+    columns = fuse_columns(table.extra, len(table))
+    parts = [table.segments.tobytes(), table.scan.tobytes()] + [np.asarray(c).tobytes() for c in columns.values()
                                                                 if c is not None]
     digest = _digest(*parts, _reference_content(reference[1].path if reference else None), _observation_content(reference))
-    return SweepInputs(table.segments, table.scan, rms, reference, digest, max_gap, sensor_xy)
+    return SweepInputs(table.segments, table.scan, reference, digest, columns)
 
 
 def _observation_content(reference: tuple[Evaluator, Reference] | None) -> bytes:
