@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_generalization.py [--split tuning|heldout|heldout2|...|heldout8] [--seeds S ...]
         [--frames a:b:c] [--workers 2] [--set key=value ...] [--cache-dir DIR] [--no-cache] [--json FILE] [--docs]
-        [--losses K] [--variant "key=value [key=value ...]" ...] [--foliage CP,CD,HP,HD|drawn]
+        [--losses K] [--variant "key=value [key=value ...]" ...] [--foliage CP,CD,HP,HD|drawn] [--drop-drives]
 
 Worlds come from :mod:`featmap.simulation.procedural` (house rows, apartment blocks, courtyards,
 side streets, far walls 50-100 m away, cars, fences, hedges, poles, trees, sloped streets with
@@ -22,6 +22,8 @@ The default covers every frame of every world of the split (31 tuning or eight t
 world), and so does any change to the generator or to the simulator's code. With an empty cache nearly
 all of the run is extraction (the speed is printed); a re-run that changes only fusion settings takes
 about a minute for the tuning split (61 s on 2026-12-03, all three methods).
+``--drop-drives`` is for a disk short of space: the worlds go ``--workers`` at a time, each deleted once
+scored (so the next run simulates them again; their scans still come from the extraction cache).
 ``--frames ::2`` halves the scans (fused maps then see each wall from half as many places).
 ``--foliage 0.3,0.3,0.15,0.2`` runs the same worlds with every tree crown and hedge porous
 (:func:`featmap.simulation.worlds.with_porous_foliage`: the share of rays passing a crown, the mean depth
@@ -505,6 +507,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--methods", default="all", help="fusion methods (all, or a comma-separated list)")
     parser.add_argument("--set", action="append", default=[], dest="overrides", help="config overrides")
     parser.add_argument("--sim-root", type=Path, default=Path("data/sim"), help="where drives are cached")
+    parser.add_argument("--drop-drives", action="store_true",
+                        help="for a disk short of space: simulate, score and delete the worlds --workers at a time "
+                             "(each is simulated again on its next use; the extraction cache still serves its scans)")
     parser.add_argument("--json", type=Path, help="also write every number to this JSON file")
     parser.add_argument("--losses", type=int, default=0, metavar="K",
                         help="also print where the segment coverage is lost: the uncovered observed wall length by "
@@ -561,10 +566,22 @@ def score_split(args, seeds: list[int], config, methods: list[str], store: Segme
     return results, wall_seconds, extracted_now, sum(len(f) for f in frames_of.values())
 
 
-def _run(args, console: Console) -> int:
+def simulate_worlds(args, seeds: list[int], workers: int, missing: list[int], console: Console) -> float:
+    """Simulate the drives of ``seeds`` that are missing or stale, ``workers`` processes at a time (those in
+    ``missing`` print their time): the wall seconds."""
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
+    start = time.perf_counter()
+    ctx = mp.get_context("spawn")            # Open3D and fork do not mix
+    with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+        for seed, seconds in pool.map(_simulate_task, [(str(args.sim_root), args.split, s, args.foliage) for s in seeds]):
+            if seed in missing:
+                console.print(f"  procedural_{seed}: {seconds:.0f} s")
+    return time.perf_counter() - start
+
+
+def _run(args, console: Console) -> int:
     from featmap.fusion.registry import resolve_methods
 
     if args.losses < 0:
@@ -602,33 +619,40 @@ def _run(args, console: Console) -> int:
     console.print(f"{args.split} split: {len(seeds)} world(s) (seeds {', '.join(map(str, seeds))}), frames "
                   f"{args.frames or 'all'}, extractor {extractor}, {workers} worker(s)"
                   + (f", porous foliage {foliage_tag(args.foliage)}" if args.foliage else ""))
-    ctx = mp.get_context("spawn")            # Open3D and fork do not mix
-
     missing = [s for s in seeds if not is_current(args.sim_root, args.split, s, args.foliage)]
     if missing:
         console.print(f"simulating {len(missing)} {args.split} world(s) into "
                       f"{drive_root(args.sim_root, args.split, 0, args.foliage).parent} (first use, or the generator "
-                      "changed them)")
-    start = time.perf_counter()
-    with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-        for seed, seconds in pool.map(_simulate_task, [(str(args.sim_root), args.split, s, args.foliage) for s in seeds]):
-            if seed in missing:
-                console.print(f"  procedural_{seed}: {seconds:.0f} s")
+                      "changed them)" + (f", {workers} at a time, each deleted once scored" if args.drop_drives else ""))
+    # With --drop-drives the worlds go `workers` at a time (simulated, scored with every variant, deleted),
+    # so the disk holds at most `workers` drives; otherwise all are simulated first and kept.
+    batches = [seeds[i:i + workers] for i in range(0, len(seeds), workers)] if args.drop_drives else [seeds]
+    results, wall_seconds, extracted_now, scans = [], 0.0, 0, 0
+    scored_variants: list[list[WorldResult]] = [[] for _ in variants]
+    simulated_seconds = 0.0
+    for batch in batches:
+        simulated_seconds += simulate_worlds(args, batch, workers, missing, console)
+        batch_results, batch_seconds, batch_now, batch_scans = score_split(args, batch, config, methods, store,
+                                                                           workers, losses=args.losses > 0)
+        results += batch_results
+        wall_seconds += batch_seconds
+        extracted_now += batch_now
+        scans += batch_scans
+        for i, (_, variant_config) in enumerate(variants):
+            scored_variants[i] += score_split(args, batch, variant_config, methods, store, workers)[0]
+        if args.drop_drives:
+            for seed in batch:
+                shutil.rmtree(drive_root(args.sim_root, args.split, seed, args.foliage), ignore_errors=True)
     if missing:
-        console.print(f"simulated in {time.perf_counter() - start:.0f} s")
+        console.print(f"simulated in {simulated_seconds:.0f} s")
 
-    results, wall_seconds, extracted_now, scans = score_split(args, seeds, config, methods, store, workers,
-                                                              losses=args.losses > 0)
     if extracted_now < scans:
         console.print(f"{scans - extracted_now} scans came from the cache ({args.cache_dir}); the speed below "
                       f"counts only the {extracted_now} extracted now")
     print_report(results, methods, args.split, wall_seconds, workers, console, extracted_now)
     if args.losses:
         print_losses(results, args.losses, methods, console)
-    compared = []
-    for text, variant_config in variants:
-        console.print(f"variant {text}:")
-        compared.append((text, score_split(args, seeds, variant_config, methods, store, workers)[0]))
+    compared = [(text, scored) for (text, _), scored in zip(variants, scored_variants)]
     if compared:
         for table in variant_tables(results, compared, methods):
             console.print(table)

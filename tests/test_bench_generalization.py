@@ -130,3 +130,34 @@ def test_porous_foliage_is_checked_and_its_drives_are_cached_apart(bench, tmp_pa
     assert bench._fingerprint(11, "drawn") not in (bench._fingerprint(11), bench._fingerprint(11, foliage))
     trees = [o for o in bench._generated(11, "drawn").world.objects if o.kind == "tree"]
     assert len(trees) > 1 and len({t.crown_porosity for t in trees}) > len(trees) // 2   # each its own
+
+
+def test_drop_drives_keeps_at_most_workers_drives_on_disk(bench, tmp_path, monkeypatch, capsys):
+    # simulation and scoring faked: each batch's drives exist while scored (with the variant too) and are gone after
+    on_disk_while_scored = []
+
+    def fake_simulate(args, seeds, workers, missing, console):
+        for seed in seeds:
+            bench.drive_root(args.sim_root, args.split, seed, args.foliage).mkdir(parents=True)
+        return 0.0
+
+    def fake_score(args, seeds, config, methods, store, workers, losses=False):
+        on_disk_while_scored.append((tuple(seeds), sorted(p.name for p in (args.sim_root / args.split).iterdir())))
+        metrics = {"count": 1, "observable_walls": 1, "precision": 1.0, "recall": 1.0, "redundancy": 1.0,
+                   "offset_cm": 0.0, "corner_err_cm": 0.0, "fusion_seconds": 0.0}
+        return ([bench.WorldResult(seed, "sensor", 1, 1, 1, (0, 0), (0, 0), 1.0, 1.0, 1.0, 1, [1.0], [10],
+                                   {name: metrics for name in methods}) for seed in seeds], 1.0, 0, len(seeds))
+
+    monkeypatch.setattr(bench, "simulate_worlds", fake_simulate)
+    monkeypatch.setattr(bench, "score_split", fake_score)
+    argv = ["--seeds", "1", "2", "3", "--workers", "2", "--methods", "proposed", "--sim-root", str(tmp_path),
+            "--cache-dir", str(tmp_path / "cache"), "--variant", "fusion.proposed.gamma=0.3", "--drop-drives"]
+    assert bench.main(argv) == 0
+    assert on_disk_while_scored == [((1, 2), ["procedural_1", "procedural_2"])] * 2 + [((3,), ["procedural_3"])] * 2
+    assert not any((tmp_path / "tuning").iterdir())
+    assert "variant" in capsys.readouterr().out
+    # without the flag every drive is simulated first and kept
+    on_disk_while_scored.clear()
+    assert bench.main(argv[:-1]) == 0
+    assert on_disk_while_scored[0] == ((1, 2, 3), ["procedural_1", "procedural_2", "procedural_3"])
+    assert len(list((tmp_path / "tuning").iterdir())) == 3
