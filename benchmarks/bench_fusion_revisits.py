@@ -9,7 +9,9 @@ Cases:
 - ``street kK``: a street grid (featmap.simulation.segments.city_walls) driven K times (observe_revisits): per pass
   every wall is seen in 20 consecutive scans, about 4 walls per scan, partial views (30-100 % of the
   wall), 3 cm endpoint noise, a per-pass localisation error (5 cm, 0.1 deg) and 5 % clutter. The number
-  of walls is chosen so that the map has N segments, so each wall is seen 20 K times.
+  of walls is chosen so that the map has N segments, so each wall is seen 20 K times. Each scan's sensor
+  position (revisited_street.py: on the street in front of the wall being passed) is given to the
+  fusion, so the proposed method's visibility clause (`visible_share`) runs as in a real drive.
 - ``freiburg-like``: a robot driving 8 laps of an office floor's corridor loop (indoor_loop_walls /
   observe_indoor_loop): about 4,800 scans, 6 segments per scan, 213 walls with door gaps, 29k segments,
   1.6 million linked pairs (the real freiburg-079 log: 4,791 scans, 22,710 segments, 2.53 million).
@@ -41,22 +43,27 @@ SCANS_PER_PASS = 20
 CLUTTER = 0.05
 
 
-def make_case(case: str, n_segments: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def make_case(case: str, n_segments: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """(segments (N, 4), scan (N,), sensor_xy (N, 2) or None) of one case."""
     from featmap.simulation.segments import city_walls, indoor_loop_walls, observe_indoor_loop, observe_revisits
+    from revisited_street import street_sensor_positions
 
     rng = np.random.default_rng(seed)
     if case == "freiburg-like":
         loop = (120.0, 80.0)
         walls = indoor_loop_walls(rng, loop_m=loop, piece_m=(1.0, 8.0))
-        return observe_indoor_loop(walls, 8, rng, loop_m=loop, scan_spacing_m=0.67, range_m=5.0, min_view_m=1.0)
+        return (*observe_indoor_loop(walls, 8, rng, loop_m=loop, scan_spacing_m=0.67, range_m=5.0, min_view_m=1.0),
+                None)
     passes = int(case.split("k")[-1])
     n_walls = max(1, round(n_segments * (1 - CLUTTER) / (SCANS_PER_PASS * passes)))
-    return observe_revisits(city_walls(n_walls, rng), passes, SCANS_PER_PASS, rng, clutter_fraction=CLUTTER)
+    walls = city_walls(n_walls, rng)
+    segments, scan = observe_revisits(walls, passes, SCANS_PER_PASS, rng, clutter_fraction=CLUTTER)
+    return segments, scan, street_sensor_positions(walls, scan, SCANS_PER_PASS)
 
 
 def worker(case: str, method: str, n_segments: int, repeats: int) -> dict:
     """Runs in its own process: warm up, time ``repeats`` fusions, report peak memory."""
-    segments, scan = make_case(case, n_segments)
+    segments, scan, sensor_xy = make_case(case, n_segments)
     start = time.perf_counter()
     from featmap.fusion.registry import FusionConfig, fuse, prepare_method
 
@@ -73,7 +80,7 @@ def worker(case: str, method: str, n_segments: int, repeats: int) -> dict:
     times, result = [], None
     for _ in range(repeats):
         t0 = time.perf_counter()
-        result = fuse(name, segments, scan, config)
+        result = fuse(name, segments, scan, config, sensor_xy=sensor_xy)
         times.append(time.perf_counter() - t0)
     return {"n": len(segments), "scans": int(len(np.unique(scan))), "features": len(result),
             "links": int(result.extras.get("links_kept", -1)), "median_s": statistics.median(times),
@@ -135,7 +142,7 @@ def fuse_processes(repeats: int) -> None:
     import tempfile
     from pathlib import Path
 
-    segments, scan = make_case("freiburg-like", 0)
+    segments, scan, _ = make_case("freiburg-like", 0)
     featmap = Path(sys.executable).with_name("featmap")
     with tempfile.TemporaryDirectory() as tmp:
         csv = Path(tmp) / "segments.csv"

@@ -8,7 +8,8 @@
 Parts:
 - ``revisits``: a street grid of 100 walls (featmap.simulation.segments.city_walls) driven K times
   (observe_revisits: per pass every wall is seen in 20 consecutive scans, about 4 walls per scan, 3 cm
-  endpoint noise, a per-pass localisation error of 5 cm / 0.1 deg, 5 % clutter), fed to
+  endpoint noise, a per-pass localisation error of 5 cm / 0.1 deg, 5 % clutter; each scan with its sensor
+  position, benchmarks/revisited_street.py, for the visibility clause), fed to
   :class:`featmap.fusion.online.OnlineFusion` one scan at a time. Per-scan linking time over the scans
   of the last pass (median and 99th percentile, milliseconds); the time to make the map of everything
   seen (``fused()``) at the end; and, for comparison, fusing the same segments offline from scratch
@@ -65,24 +66,28 @@ def feed(passes: int, seed: int = 0) -> dict:
     from featmap.fusion.online import OnlineFusion
     from featmap.fusion.registry import FusionConfig, fuse
     from featmap.simulation.segments import city_walls, observe_revisits
+    from revisited_street import street_sensor_positions
 
     rng = np.random.default_rng(seed)
-    segments, scan = observe_revisits(city_walls(N_WALLS, rng), passes, SCANS_PER_WALL, rng, clutter_fraction=0.05)
+    walls = city_walls(N_WALLS, rng)
+    segments, scan = observe_revisits(walls, passes, SCANS_PER_WALL, rng, clutter_fraction=0.05)
     order = np.argsort(scan, kind="stable")
     segments, scan = segments[order], scan[order]
+    sensor_xy = street_sensor_positions(walls, scan, SCANS_PER_WALL)
     n_scans = int(scan.max()) + 1
     bounds = np.searchsorted(scan, np.arange(n_scans + 1))
+    scan_xy = street_sensor_positions(walls, np.arange(n_scans), SCANS_PER_WALL)    # (S, 2), one per scan
     online = OnlineFusion(FusionConfig())
     link = np.empty(n_scans)
     for s in range(n_scans):
         t0 = time.perf_counter()
-        online.add_scan(segments[bounds[s]:bounds[s + 1]])
+        online.add_scan(segments[bounds[s]:bounds[s + 1]], sensor_xy=scan_xy[s])
         link[s] = time.perf_counter() - t0
     t0 = time.perf_counter()
     result = online.fused()
     map_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    offline = fuse("proposed", segments, scan, FusionConfig())
+    offline = fuse("proposed", segments, scan, FusionConfig(), sensor_xy=sensor_xy)
     offline_s = time.perf_counter() - t0
     last = link[-(n_scans // passes):]
     return {"segments": len(segments), "scans": n_scans, "features": len(result),

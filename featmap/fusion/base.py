@@ -113,17 +113,18 @@ class SupportViews:
         return SupportViews(self.clean, self.coarse, self.sensor_xy - np.asarray(origin, dtype=float))
 
     def seen(self, lines: Callable[[], np.ndarray], labels: np.ndarray, scan: np.ndarray
-             ) -> Callable[[np.ndarray], np.ndarray] | None:
-        """For :meth:`SupportRule.keep`: given the (C,) clusters kept so far, the share of the scans that
-        could see each other cluster's line that saw it (:func:`~featmap.fusion.visibility.seen_share`, the
-        kept lines hiding what lies behind them). ``lines()`` gives the (C, 4) fitted lines, ``labels`` (N,)
-        each segment's cluster, ``scan`` (N,) its scan. None without sensor positions."""
+             ) -> Callable[[np.ndarray, float | None], np.ndarray] | None:
+        """For :meth:`SupportRule.keep`: given the (C,) clusters kept so far and the share that keeps one
+        (or None), the share of the scans that could see each other cluster's line that saw it
+        (:func:`~featmap.fusion.visibility.seen_share`, the kept lines hiding what lies behind them; a share
+        below the one that keeps is only known to be below it). ``lines()`` gives the (C, 4) fitted lines,
+        ``labels`` (N,) each segment's cluster, ``scan`` (N,) its scan. None without sensor positions."""
         if self.sensor_xy is None:
             return None
 
-        def share(kept: np.ndarray) -> np.ndarray:
+        def share(kept: np.ndarray, at_least: float | None = None) -> np.ndarray:
             fitted = lines()
-            return seen_share(fitted, labels, scan, self.sensor_xy, ~kept, fitted[kept])
+            return seen_share(fitted, labels, scan, self.sensor_xy, ~kept, fitted[kept], at_least)
         return share
 
     def clean_members(self, labels: np.ndarray, n_clusters: int) -> np.ndarray | None:
@@ -218,10 +219,10 @@ class SupportRule:
 
     def keep(self, members: np.ndarray, covered: Callable[[], np.ndarray],
              clean_members: np.ndarray | None = None,
-             seen: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
+             seen: Callable[[np.ndarray, float | None], np.ndarray] | None = None) -> np.ndarray:
         """(C,) kept clusters from their (C,) member counts; ``covered()`` gives each one's covered
         length (C,) (called only when the length rule is needed); ``clean_members`` (C,): how many of each
-        cluster's members are clean views (:meth:`clean_views`); one keeps the cluster; ``seen(kept)``
+        cluster's members are clean views (:meth:`clean_views`); one keeps the cluster; ``seen(kept, visible_share)``
         (:meth:`SupportViews.seen`) gives the share of the scans able to see each cluster not kept by the
         other clauses that saw it (called only when the visibility clause is set and needed)."""
         kept = members >= self.min_support
@@ -233,7 +234,7 @@ class SupportRule:
             kept |= clean_members > 0
         if self.visible_share is not None and seen is not None and not kept.all():
             with np.errstate(invalid="ignore"):
-                kept |= seen(kept) >= self.visible_share
+                kept |= seen(kept, self.visible_share) >= self.visible_share
         return kept
 
 

@@ -35,6 +35,7 @@ from featmap.config import Section
 from featmap.fusion.base import (TINY_INPUT, FusionMethod, FusionResult, SupportRule, SupportViews, fit_clusters,
                                  relabel_by_first_appearance, validate_input)
 from featmap.fusion.gaps import observed_length
+from featmap.fusion.visibility import prepare as prepare_visibility
 from featmap.geometry import (circle_overlap_area, included_angle, line_coefficients, point_segment_distance,
                               segment_lengths, segment_midpoints)
 
@@ -296,7 +297,13 @@ def support_rule(config: ProposedConfig) -> SupportRule:
                        config.visible_share)
 
 
+def _prepare() -> None:
+    """Load the compiled code: the links' and the visibility clause's (on tiny inputs)."""
+    fuse_proposed(*TINY_INPUT)
+    prepare_visibility()
+
+
 METHOD = FusionMethod(name="proposed", title="Proposed (three criteria)", color="#d62728", linestyle="-",
                       config_type=ProposedConfig, fuse=fuse_proposed,
                       support_rule=support_rule,
-                      prepare=lambda: fuse_proposed(*TINY_INPUT))
+                      prepare=_prepare)

@@ -22,6 +22,8 @@ from typing import Mapping
 import numpy as np
 from scipy.spatial import cKDTree
 
+from featmap.fusion.link_forest import compiled
+
 RANGE_FACTOR = 1.2
 """A scan could see a line from up to this many times the range of the farthest scan that saw it."""
 INCIDENCE_SLACK_DEG = 5.0
@@ -71,10 +73,101 @@ def _crosses_any(start: np.ndarray, end: np.ndarray, blockers: np.ndarray) -> np
     return ((den != 0) & (t > 0.02) & (t < 0.98) & (u >= 0.0) & (u <= 1.0)).any(axis=1)
 
 
+FIRST_CHUNK = 32
+"""The other scans are tested nearest first: this many for every candidate at once (compiled), then, for a
+candidate they leave undecided, four times as many each round."""
+
+
+@compiled()
+def _shares_kernel(positions, todo, pair_start, pair_scan, mids, normals, sides, cos_limits, reaches,
+                   nearest, nearest_dist, blockers, blocker_lo, blocker_hi, room_share, is_member, out, decided):
+    """For each candidate ``todo[i]`` (its (2,) ``mids[i]``, ``normals[i]``, ``sides[i]``, ``cos_limits[i]``
+    and ``reaches[i]``, see :func:`seen_share`): its members' visible views and then the other scans among
+    its ``nearest[i]`` (K,) (``nearest_dist[i]`` from ``mids[i]``, ascending; len(positions) where missing),
+    until the share cannot reach ``room_share`` (NaN: never). Writes ``out[i]`` and ``decided[i]`` (False
+    when all K were within reach and the share could still reach it: more scans must be counted)."""
+    n_scans = positions.shape[0]
+    n_blockers = blockers.shape[0]
+    near_blockers = np.empty(n_blockers, dtype=np.int64)
+    for i in range(todo.shape[0]):
+        c = todo[i]
+        mx, my = mids[i, 0], mids[i, 1]
+        nx, ny = normals[i, 0], normals[i, 1]
+        reach = reaches[i]
+        n_near = 0                                # the blockers whose box meets the square of reach around mid
+        for b in range(n_blockers):
+            if (blocker_hi[b, 0] >= mx - reach and blocker_hi[b, 1] >= my - reach
+                    and blocker_lo[b, 0] <= mx + reach and blocker_lo[b, 1] <= my + reach):
+                near_blockers[n_near] = b
+                n_near += 1
+        saw = 0
+        for k in range(pair_start[c], pair_start[c + 1]):
+            if _sees(positions[pair_scan[k]], mx, my, nx, ny, sides[i], cos_limits[i], blockers, near_blockers, n_near):
+                saw += 1
+        if saw == 0:
+            out[i] = 0.0
+            decided[i] = True
+            continue
+        room = np.inf
+        if not np.isnan(room_share):
+            room = np.floor(saw * (1.0 - room_share) / room_share + 1e-9)
+        for k in range(pair_start[c], pair_start[c + 1]):
+            is_member[pair_scan[k]] = True
+        others = 0
+        complete = False
+        for j in range(nearest.shape[1]):
+            s = nearest[i, j]
+            if s >= n_scans or nearest_dist[i, j] > reach:
+                complete = True
+                break
+            if is_member[s]:
+                continue
+            if _sees(positions[s], mx, my, nx, ny, sides[i], cos_limits[i], blockers, near_blockers, n_near):
+                others += 1
+                if others > room:
+                    complete = True
+                    break
+        for k in range(pair_start[c], pair_start[c + 1]):
+            is_member[pair_scan[k]] = False
+        out[i] = saw / (saw + others)
+        decided[i] = complete or nearest.shape[1] >= n_scans
+
+
+@compiled()
+def _sees(xy, mx, my, nx, ny, side, cos_limit, blockers, near_blockers, n_near):
+    """Whether a sensor at ``xy`` (2,) could see the midpoint (mx, my) of a line with unit normal (nx, ny)
+    from ``side`` within ``cos_limit``, its sight line crossing none of ``blockers[near_blockers[:n_near]]``
+    (as :func:`_crosses_any`)."""
+    rx, ry = xy[0] - mx, xy[1] - my
+    facing = side * (rx * nx + ry * ny)
+    if not (facing > 0 and facing >= cos_limit * np.hypot(rx, ry)):
+        return False
+    dx, dy = mx - xy[0], my - xy[1]                   # the sight line, sensor to midpoint
+    for q in range(n_near):
+        b = near_blockers[q]
+        ax, ay = blockers[b, 0], blockers[b, 1]
+        sx, sy = blockers[b, 2] - ax, blockers[b, 3] - ay
+        den = dx * sy - dy * sx
+        if den == 0:
+            continue
+        px, py = ax - xy[0], ay - xy[1]
+        t = (px * sy - py * sx) / den
+        u = (px * dy - py * dx) / den
+        if t > 0.02 and t < 0.98 and u >= 0.0 and u <= 1.0:
+            return False
+    return True
+
+
 def seen_share(lines: np.ndarray, labels: np.ndarray, scan: np.ndarray, sensor_xy: np.ndarray,
-               candidates: np.ndarray, blockers: np.ndarray) -> np.ndarray:
+               candidates: np.ndarray, blockers: np.ndarray, at_least: float | None = None) -> np.ndarray:
     """For each candidate cluster, the share of the scans that could see its line (see the module docstring)
     that returned one of its members.
+
+    The members' own views are tested first, then the other scans within range nearest first (the first
+    ``FIRST_CHUNK`` of every candidate in one compiled pass, more in rounds of growing size for a candidate
+    that needs them); with ``at_least`` the counting stops as soon as the share cannot reach it, so a
+    cluster seen by few of many scans in range (a crown passed by every drive of a revisited street) costs
+    about as much as one seen once.
 
     Args:
         lines: (C, 4) each cluster's fitted line ``x1, y1, x2, y2``.
@@ -82,6 +175,10 @@ def seen_share(lines: np.ndarray, labels: np.ndarray, scan: np.ndarray, sensor_x
         scan: (N,) the scan of each segment; sensor_xy: (N, 2) where the sensor stood when it was taken.
         candidates: (C,) bool, the clusters to measure.
         blockers: (B, 4) the features that hide what lies behind them.
+        at_least: the share a caller keeps a cluster at, or None. A share below it is then returned as
+            some value below it (the share over the scans counted when the counting stopped, an upper bound
+            of the true one); a share at or above it is exact, so ``share >= at_least`` decides as the full
+            count does.
     Returns:
         (C,) the share in [0, 1] for each candidate, 0 when no scan of its members sees its midpoint (it lies
         behind a blocker from where it was seen), NaN for the other clusters.
@@ -92,44 +189,66 @@ def seen_share(lines: np.ndarray, labels: np.ndarray, scan: np.ndarray, sensor_x
     if len(todo) == 0:
         return out
     scan_ids, first = np.unique(scan, return_index=True)
-    positions = np.asarray(sensor_xy, dtype=float)[first]                 # (S, 2), one per scan
-    tree = cKDTree(positions)
+    positions = np.ascontiguousarray(np.asarray(sensor_xy, dtype=float)[first])     # (S, 2), one per scan
+    n_scans = len(positions)
     member = labels >= 0
-    pairs = np.unique(labels[member] * len(scan_ids) + np.searchsorted(scan_ids, scan[member]))   # (cluster, scan)
-    pair_cluster, pair_scan = np.divmod(pairs, len(scan_ids))
-    starts = np.searchsorted(pair_cluster, np.arange(len(lines) + 1))
-    blockers = np.asarray(blockers, dtype=float).reshape(-1, 4)
+    pairs = np.unique(labels[member] * n_scans + np.searchsorted(scan_ids, scan[member]))   # (cluster, scan)
+    pair_cluster, pair_scan = np.divmod(pairs, n_scans)
+    pair_start = np.searchsorted(pair_cluster, np.arange(len(lines) + 1))
+    blockers = np.ascontiguousarray(np.asarray(blockers, dtype=float).reshape(-1, 4))
     blocker_lo = np.minimum(blockers[:, :2], blockers[:, 2:])
     blocker_hi = np.maximum(blockers[:, :2], blockers[:, 2:])
-    cos_floor = np.cos(np.radians(MIN_WINDOW_DEG))
-    is_member = np.zeros(len(positions), dtype=bool)          # of the cluster at hand (set and reset per cluster)
-    for c in todo:
-        seen_by = pair_scan[starts[c]:starts[c + 1]]
-        direction = lines[c, 2:] - lines[c, :2]
-        length = float(np.hypot(*direction))
-        if len(seen_by) == 0 or length == 0:
-            out[c] = 0.0
-            continue
-        mid = (lines[c, :2] + lines[c, 2:]) / 2
-        normal = np.array([-direction[1], direction[0]]) / length
-        to_sensor = positions[seen_by] - mid
-        ranges = np.hypot(to_sensor[:, 0], to_sensor[:, 1])
-        side = 1.0 if (to_sensor @ normal).sum() >= 0 else -1.0
-        with np.errstate(invalid="ignore", divide="ignore"):
-            head_on = np.abs(to_sensor @ normal) / ranges                 # cosine of each view's incidence
-        widest = np.nanmin(head_on, initial=1.0)
-        cos_limit = min(np.cos(min(np.arccos(np.clip(widest, 0, 1)) + np.radians(INCIDENCE_SLACK_DEG), np.pi / 2)),
-                        cos_floor)
-        reach = RANGE_FACTOR * float(ranges.max())
-        near = np.asarray(tree.query_ball_point(mid, reach), dtype=np.int64)
-        rel = positions[near] - mid
-        dist = np.hypot(rel[:, 0], rel[:, 1])
-        facing = side * (rel @ normal)
-        could = near[(facing > 0) & (facing >= cos_limit * dist)]
-        in_box = ((blocker_hi >= mid - reach) & (blocker_lo <= mid + reach)).all(axis=1)
-        visible = could[~_crosses_any(positions[could], mid, blockers[in_box])]
-        is_member[seen_by] = True
-        saw = int(is_member[visible].sum())
-        is_member[seen_by] = False
-        out[c] = saw / len(visible) if saw else 0.0
+
+    # per candidate, from its members' views: the side they saw it from, how obliquely a scan may look, how far
+    direction = lines[todo, 2:] - lines[todo, :2]
+    length = np.hypot(direction[:, 0], direction[:, 1])
+    n_members = pair_start[todo + 1] - pair_start[todo]
+    measurable = (n_members > 0) & (length > 0)
+    out[todo[~measurable]] = 0.0
+    todo, direction, length = todo[measurable], direction[measurable], length[measurable]
+    if len(todo) == 0:
+        return out
+    mids = (lines[todo, :2] + lines[todo, 2:]) / 2
+    normals = np.column_stack([-direction[:, 1], direction[:, 0]]) / length[:, None]
+    position_in_todo = np.full(len(lines), -1)
+    position_in_todo[todo] = np.arange(len(todo))
+    of_todo = position_in_todo[pair_cluster] >= 0
+    which = position_in_todo[pair_cluster[of_todo]]                     # (P',) the candidate of each of its views
+    seen_by = pair_scan[of_todo]
+    to_sensor = positions[seen_by] - mids[which]
+    ranges = np.hypot(to_sensor[:, 0], to_sensor[:, 1])
+    along_normal = np.einsum("ij,ij->i", to_sensor, normals[which])
+    sides = np.where(np.bincount(which, along_normal, len(todo)) >= 0, 1.0, -1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        head_on = np.abs(along_normal) / ranges                          # cosine of each view's incidence
+    widest = np.ones(len(todo))
+    np.fmin.at(widest, which, head_on)                                   # (NaN views, at range 0, skipped)
+    slack, floor = np.radians(INCIDENCE_SLACK_DEG), np.cos(np.radians(MIN_WINDOW_DEG))
+    cos_limits = np.minimum(np.cos(np.minimum(np.arccos(np.clip(widest, 0, 1)) + slack, np.pi / 2)), floor)
+    reaches = np.zeros(len(todo))
+    np.maximum.at(reaches, which, ranges)
+    reaches *= RANGE_FACTOR
+
+    tree = cKDTree(positions)
+    room_share = np.nan if at_least is None else float(at_least)
+    is_member = np.zeros(n_scans, dtype=bool)
+    k = min(FIRST_CHUNK, n_scans)
+    left = np.arange(len(todo))                 # the candidates not decided yet
+    while len(left):
+        dist, nearest = tree.query(mids[left], k=k)
+        dist, nearest = dist.reshape(len(left), k), nearest.reshape(len(left), k)
+        share, decided = np.empty(len(left)), np.empty(len(left), dtype=bool)
+        _shares_kernel(positions, todo[left], pair_start, pair_scan, mids[left], normals[left], sides[left],
+                       cos_limits[left], reaches[left], nearest.astype(np.int64), dist, blockers, blocker_lo,
+                       blocker_hi, room_share, is_member, share, decided)
+        out[todo[left[decided]]] = share[decided]
+        left = left[~decided]
+        k = min(4 * k, n_scans)
     return out
+
+
+def prepare() -> None:
+    """Load the compiled code of :func:`seen_share` (a one-off cost per process; from numba's disk cache
+    when it has one)."""
+    seen_share(np.array([[0.0, 5.0, 2.0, 5.0]]), np.array([0, -1]), np.array([0, 1]),
+               np.array([[1.0, 0.0], [3.0, 0.0]]), np.array([True]), np.array([[0.0, 2.0, 2.0, 2.5]]), 0.5)

@@ -8,6 +8,7 @@ from featmap.fusion.base import SupportViews
 from featmap.fusion.online import OnlineFusion
 from featmap.fusion.visibility import seen_share, sensor_xy_column
 from featmap.simulation.segments import observe_walls
+from tests.repo_scripts import repo_script
 
 STREET = np.column_stack([np.arange(41.0), np.zeros(41)])
 """41 scans taken 1 m apart along y = 0 (scan k at x = k)."""
@@ -123,3 +124,26 @@ def test_support_views_carry_sensor_positions_through_subset_and_move():
     assert views.subset(np.array([2, 0])).sensor_xy.tolist() == [[5, 6], [1, 2]]
     assert views.moved(np.array([1.0, 1.0])).sensor_xy.tolist() == [[0, 1], [2, 3], [4, 5]]
     assert SupportViews().seen(lambda: np.zeros((0, 4)), np.zeros(0, np.int64), np.zeros(0, np.int64)) is None
+
+
+def test_stopping_early_decides_as_the_full_count():
+    """With ``at_least`` the count stops once a share cannot reach it: every share at or above it is exact
+    and every other one stays below it (and above the true share), on a street driven five times."""
+    from featmap.simulation.segments import city_walls, observe_revisits
+
+    with repo_script("benchmarks/revisited_street.py") as street:
+        street_sensor_positions = street.street_sensor_positions
+    rng = np.random.default_rng(4)
+    walls = city_walls(24, rng)
+    segs, scan = observe_revisits(walls, 5, 20, rng, clutter_fraction=0.1)
+    xy = street_sensor_positions(walls, scan, 20)
+    fused = fuse("proposed", segs, scan, FusionConfig(), sensor_xy=xy)
+    lines, labels = fused.segments, fused.labels
+    candidates = np.ones(len(lines), dtype=bool)
+    for at_least in (0.5, 0.3, 0.8):
+        exact = seen_share(lines, labels, scan, xy, candidates, lines)
+        quick = seen_share(lines, labels, scan, xy, candidates, lines, at_least=at_least)
+        reached = exact >= at_least
+        assert 0 < reached.sum() < len(lines)                  # both kinds occur
+        assert np.array_equal(quick[reached], exact[reached])
+        assert (quick[~reached] < at_least).all() and (quick[~reached] >= exact[~reached] - 1e-12).all()
