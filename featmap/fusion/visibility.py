@@ -56,23 +56,6 @@ def sensor_xy_column(columns: Mapping[str, np.ndarray], n_segments: int) -> np.n
     return xy
 
 
-def _crosses_any(start: np.ndarray, end: np.ndarray, blockers: np.ndarray) -> np.ndarray:
-    """(K,) whether the sight line from each ``start`` (K, 2) to ``end`` (2,) crosses one of ``blockers``
-    (B, 4); a crossing within the sight line's first or last 2 % (at the sensor, or at the line itself)
-    does not count."""
-    if len(blockers) == 0 or len(start) == 0:
-        return np.zeros(len(start), dtype=bool)
-    r = (end - start)[:, None, :]                         # (K, 1, 2) sight lines
-    a = blockers[None, :, :2]
-    s = blockers[None, :, 2:] - blockers[None, :, :2]     # (1, B, 2)
-    den = r[..., 0] * s[..., 1] - r[..., 1] * s[..., 0]
-    ap = a - start[:, None, :]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (ap[..., 0] * s[..., 1] - ap[..., 1] * s[..., 0]) / den
-        u = (ap[..., 0] * r[..., 1] - ap[..., 1] * r[..., 0]) / den
-    return ((den != 0) & (t > 0.02) & (t < 0.98) & (u >= 0.0) & (u <= 1.0)).any(axis=1)
-
-
 FIRST_CHUNK = 32
 """The other scans are tested nearest first: this many for every candidate at once (compiled), then, for a
 candidate they leave undecided, four times as many each round."""
@@ -137,7 +120,8 @@ def _shares_kernel(positions, todo, pair_start, pair_scan, mids, normals, sides,
 def _sees(xy, mx, my, nx, ny, side, cos_limit, blockers, near_blockers, n_near):
     """Whether a sensor at ``xy`` (2,) could see the midpoint (mx, my) of a line with unit normal (nx, ny)
     from ``side`` within ``cos_limit``, its sight line crossing none of ``blockers[near_blockers[:n_near]]``
-    (as :func:`_crosses_any`)."""
+    ((B, 4) segments; a crossing within the sight line's first or last 2 %, at the sensor or at the line
+    itself, does not count)."""
     rx, ry = xy[0] - mx, xy[1] - my
     facing = side * (rx * nx + ry * ny)
     if not (facing > 0 and facing >= cos_limit * np.hypot(rx, ry)):
