@@ -54,7 +54,7 @@ class ProposedConfig(Section):
     clean_rms_ratio: Optional[float] = Field(0.5, gt=0, description="also keep smaller clusters with a clean view: a member whose fit rms is at most this times the median of all segments' (the extraction's rms column; null = off) ...")
     clean_min_length_m: float = Field(1.4, ge=0, description="... and that is at least this long")
     coarse_gap_m: Optional[float] = Field(2.0, gt=0, description="a member whose returns lie this far apart along it (the extraction's max_gap column) counts toward min_support but covers no length for min_support_length_m and min_single_length_m (null = off)")
-    visible_share: Optional[float] = Field(None, gt=0, le=1, description="also keep smaller clusters that at least this share of the scans able to see their line saw (the sensor_x / sensor_y columns; a wall seen through a gap by the only scans that could see it, not a tree crown extracted by two of forty scans; null = off; measured in docs/results.md, not adopted)")
+    visible_share: Optional[float] = Field(0.5, gt=0, le=1, description="also keep smaller clusters that at least this share of the scans able to see their line saw (the sensor_x / sensor_y columns; a wall seen through a gap by the only scans that could see it, not a tree crown extracted by two of forty scans; null = off)")
     fit_weighting: Literal["length", "none"] = Field("length", description="weight of each member's endpoints in the TLS fit")
 
 

@@ -67,9 +67,9 @@ def _gap_scene():
 
 def test_the_clause_keeps_a_wall_seen_through_a_gap_and_drops_a_piece_most_scans_saw_nothing_on():
     segs, scan, xy = _gap_scene()
-    plain = FusionConfig()
-    visible = FusionConfig.model_validate({"proposed": {"visible_share": 0.5}})
-    assert plain.proposed.visible_share is None                       # off by default
+    plain = FusionConfig.model_validate({"proposed": {"visible_share": None}})
+    visible = FusionConfig()
+    assert visible.proposed.visible_share == 0.5                       # the default
     without = fuse("proposed", segs, scan, plain, sensor_xy=xy)
     assert len(without.segments) == 2                                   # the fronts only (3 views < min_support 4)
     result = fuse("proposed", segs, scan, visible, sensor_xy=xy)
