@@ -56,20 +56,21 @@ def sensor_xy_column(columns: Mapping[str, np.ndarray], n_segments: int) -> np.n
     return xy
 
 
-FIRST_CHUNK = 32
-"""The other scans are tested nearest first: this many for every candidate at once (compiled), then, for a
-candidate they leave undecided, four times as many each round."""
+NEAREST_ROUNDS = (32, 512)
+"""The other scans are tested nearest first: this many for every candidate still open, each round in one
+compiled pass, then every scan within reach of those the rounds leave open."""
 
 
 @compiled()
 def _shares_kernel(positions, todo, pair_start, pair_scan, mids, normals, sides, cos_limits, reaches,
-                   nearest, nearest_dist, blockers, blocker_lo, blocker_hi, room_share, is_member, out, decided):
+                   near_start, near_scan, near_dist, every_scan_in_range, blockers, blocker_lo, blocker_hi,
+                   room_share, is_member, out, decided):
     """For each candidate ``todo[i]`` (its (2,) ``mids[i]``, ``normals[i]``, ``sides[i]``, ``cos_limits[i]``
-    and ``reaches[i]``, see :func:`seen_share`): its members' visible views and then the other scans among
-    its ``nearest[i]`` (K,) (``nearest_dist[i]`` from ``mids[i]``, ascending; len(positions) where missing),
-    until the share cannot reach ``room_share`` (NaN: never). Writes ``out[i]`` and ``decided[i]`` (False
-    when all K were within reach and the share could still reach it: more scans must be counted)."""
-    n_scans = positions.shape[0]
+    and ``reaches[i]``, see :func:`seen_share`): its members' visible views and then the other scans
+    ``near_scan[near_start[i]:near_start[i + 1]]`` (at ``near_dist`` from ``mids[i]``, ascending unless
+    ``every_scan_in_range[i]``: then they are all the scans within reach), until the share cannot reach
+    ``room_share`` (NaN: never). Writes ``out[i]`` and ``decided[i]`` (False when the scans given were all
+    within reach, not all of them, and the share could still reach it: more scans must be counted)."""
     n_blockers = blockers.shape[0]
     near_blockers = np.empty(n_blockers, dtype=np.int64)
     for i in range(todo.shape[0]):
@@ -97,10 +98,10 @@ def _shares_kernel(positions, todo, pair_start, pair_scan, mids, normals, sides,
         for k in range(pair_start[c], pair_start[c + 1]):
             is_member[pair_scan[k]] = True
         others = 0
-        complete = False
-        for j in range(nearest.shape[1]):
-            s = nearest[i, j]
-            if s >= n_scans or nearest_dist[i, j] > reach:
+        complete = every_scan_in_range[i]
+        for j in range(near_start[i], near_start[i + 1]):
+            s = near_scan[j]
+            if near_dist[j] > reach:
                 complete = True
                 break
             if is_member[s]:
@@ -113,7 +114,7 @@ def _shares_kernel(positions, todo, pair_start, pair_scan, mids, normals, sides,
         for k in range(pair_start[c], pair_start[c + 1]):
             is_member[pair_scan[k]] = False
         out[i] = saw / (saw + others)
-        decided[i] = complete or nearest.shape[1] >= n_scans
+        decided[i] = complete
 
 
 @compiled()
@@ -147,9 +148,9 @@ def seen_share(lines: np.ndarray, labels: np.ndarray, scan: np.ndarray, sensor_x
     """For each candidate cluster, the share of the scans that could see its line (see the module docstring)
     that returned one of its members.
 
-    The members' own views are tested first, then the other scans within range nearest first (the first
-    ``FIRST_CHUNK`` of every candidate in one compiled pass, more in rounds of growing size for a candidate
-    that needs them); with ``at_least`` the counting stops as soon as the share cannot reach it, so a
+    The members' own views are tested first, then the other scans within range, nearest first (the
+    ``NEAREST_ROUNDS`` nearest of every candidate still open, each round in one compiled pass, then all of
+    them); with ``at_least`` the counting stops as soon as the share cannot reach it, so a
     cluster seen by few of many scans in range (a crown passed by every drive of a revisited street) costs
     about as much as one seen once.
 
@@ -175,7 +176,8 @@ def seen_share(lines: np.ndarray, labels: np.ndarray, scan: np.ndarray, sensor_x
     scan_ids, first = np.unique(scan, return_index=True)
     positions = np.ascontiguousarray(np.asarray(sensor_xy, dtype=float)[first])     # (S, 2), one per scan
     n_scans = len(positions)
-    member = labels >= 0
+    member = np.flatnonzero(labels >= 0)
+    member = member[np.isin(labels[member], todo)]          # the candidates' members only
     pairs = np.unique(labels[member] * n_scans + np.searchsorted(scan_ids, scan[member]))   # (cluster, scan)
     pair_cluster, pair_scan = np.divmod(pairs, n_scans)
     pair_start = np.searchsorted(pair_cluster, np.arange(len(lines) + 1))
@@ -216,18 +218,31 @@ def seen_share(lines: np.ndarray, labels: np.ndarray, scan: np.ndarray, sensor_x
     tree = cKDTree(positions)
     room_share = np.nan if at_least is None else float(at_least)
     is_member = np.zeros(n_scans, dtype=bool)
-    k = min(FIRST_CHUNK, n_scans)
-    left = np.arange(len(todo))                 # the candidates not decided yet
-    while len(left):
-        dist, nearest = tree.query(mids[left], k=k)
-        dist, nearest = dist.reshape(len(left), k), nearest.reshape(len(left), k)
-        share, decided = np.empty(len(left)), np.empty(len(left), dtype=bool)
+    share = np.empty(len(todo))
+    left = np.arange(len(todo))             # the candidates still open
+    for k in (*NEAREST_ROUNDS, None):       # the k nearest scans of each, then every scan within its reach
+        if k is not None and k >= n_scans:
+            continue
+        if k is None:
+            in_range = tree.query_ball_point(mids[left], np.nextafter(reaches[left], np.inf),   # (as <= reach)
+                                             return_sorted=False)
+            counts = np.array([len(scans) for scans in in_range], dtype=np.int64)
+            near_scan = np.concatenate([np.asarray(scans, dtype=np.int64) for scans in in_range])
+            near_start, near_dist = np.concatenate([[0], np.cumsum(counts)]), np.zeros(len(near_scan))
+        else:
+            near_dist, near_scan = tree.query(mids[left], k=k)
+            near_start, near_scan = np.arange(0, k * len(left) + 1, k), near_scan.reshape(-1).astype(np.int64)
+            near_dist = near_dist.reshape(-1)
+        part, part_decided = np.empty(len(left)), np.zeros(len(left), dtype=bool)
         _shares_kernel(positions, todo[left], pair_start, pair_scan, mids[left], normals[left], sides[left],
-                       cos_limits[left], reaches[left], nearest.astype(np.int64), dist, blockers, blocker_lo,
-                       blocker_hi, room_share, is_member, share, decided)
-        out[todo[left[decided]]] = share[decided]
-        left = left[~decided]
-        k = min(4 * k, n_scans)
+                       cos_limits[left], reaches[left], near_start, near_scan, near_dist,
+                       np.full(len(left), k is None), blockers, blocker_lo, blocker_hi, room_share, is_member,
+                       part, part_decided)
+        share[left] = part
+        left = left[~part_decided]
+        if len(left) == 0:
+            break
+    out[todo] = share
     return out
 
 
