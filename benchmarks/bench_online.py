@@ -73,7 +73,6 @@ def feed(passes: int, seed: int = 0) -> dict:
     segments, scan = observe_revisits(walls, passes, SCANS_PER_WALL, rng, clutter_fraction=0.05)
     order = np.argsort(scan, kind="stable")
     segments, scan = segments[order], scan[order]
-    sensor_xy = street_sensor_positions(walls, scan, SCANS_PER_WALL)
     n_scans = int(scan.max()) + 1
     bounds = np.searchsorted(scan, np.arange(n_scans + 1))
     scan_xy = street_sensor_positions(walls, np.arange(n_scans), SCANS_PER_WALL)    # (S, 2), one per scan
@@ -87,7 +86,7 @@ def feed(passes: int, seed: int = 0) -> dict:
     result = online.fused()
     map_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    offline = fuse("proposed", segments, scan, FusionConfig(), sensor_xy=sensor_xy)
+    offline = fuse("proposed", segments, scan, FusionConfig(), sensor_xy=scan_xy[scan])
     offline_s = time.perf_counter() - t0
     last = link[-(n_scans // passes):]
     return {"segments": len(segments), "scans": n_scans, "features": len(result),
