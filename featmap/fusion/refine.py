@@ -279,7 +279,8 @@ def merge_consistent(segments: np.ndarray, labels: np.ndarray, fused: np.ndarray
         return unchanged
     a, b = owner[pairs[:, 0]], owner[pairs[:, 1]]
     keep = a != b
-    ab = np.unique(np.sort(np.stack([a[keep], b[keep]], axis=1), axis=1), axis=0)
+    pair_keys = np.unique(np.minimum(a[keep], b[keep]) * n + np.maximum(a[keep], b[keep]))   # (lower, higher)
+    ab = np.stack(np.divmod(pair_keys, n), axis=1)
     if len(ab) == 0:
         return unchanged
     d = fused[:, 2:] - fused[:, :2]
