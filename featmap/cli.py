@@ -439,6 +439,58 @@ def figures(
         typer.echo(f"wrote {p}")
 
 
+SIZE_UNITS = {"": 1, "B": 1, "K": 1000, "KB": 1000, "M": 1000**2, "MB": 1000**2, "G": 1000**3, "GB": 1000**3,
+              "T": 1000**4, "TB": 1000**4, "KIB": 1024, "MIB": 1024**2, "GIB": 1024**3, "TIB": 1024**4}
+
+
+def parse_size(text: str, flag: str) -> int:
+    """Bytes from a size such as ``4GB``, ``500M``, ``1.5GiB`` or ``0`` (K, M, G, T are powers of 1000;
+    KiB, MiB, GiB, TiB of 1024); one-line error naming ``flag`` otherwise."""
+    import re
+
+    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([A-Za-z]*)\s*", text)
+    if match is None or match.group(2).upper() not in SIZE_UNITS:
+        _fail(f"{flag} {text!r}: not a size (examples: 4GB, 500MB, 1.5GiB, 0)")
+    return int(float(match.group(1)) * SIZE_UNITS[match.group(2).upper()])
+
+
+def _gigabytes(n_bytes: int) -> str:
+    return f"{n_bytes / 1e9:.2f} GB"
+
+
+@command
+def cache(
+    cache_dir: Path = CacheOpt,
+    max_size: Optional[str] = typer.Option(None, "--max-size", help="Remove the least recently used entries until the rest take at most this much (e.g. 4GB, 500MB, 0)."),
+    unused_days: Optional[float] = typer.Option(None, "--unused-days", min=0, help="Remove the entries no run has used for more than this many days."),
+    dry_run: bool = typer.Option(False, "--dry-run", help="Only say what would be removed."),
+):
+    """Show the segment cache's size, or prune it: least recently used entries first (old extractor
+    code's and deleted drives' entries are never used again, so they go first)."""
+    import time
+
+    from featmap.pipeline import SegmentStore
+
+    if not cache_dir.is_dir():
+        _fail(f"--cache-dir {cache_dir}: no such folder")
+    store = SegmentStore(cache_dir)
+    reporter = _reporter()
+    if max_size is None and unused_days is None:
+        entries = store.entries()
+        total = sum(entry.size for entry in entries)
+        when = (lambda t: time.strftime("%Y-%m-%d %H:%M", time.localtime(t)))
+        uses = [when(entries[0].last_use), when(entries[-1].last_use)] if entries else ["-", "-"]
+        reporter.table(f"segment cache {cache_dir}", ["entries", "size", "least recently used", "most recently used"],
+                       [[f"{len(entries):,}", _gigabytes(total), *uses]])
+        return
+    result = store.prune(None if max_size is None else parse_size(max_size, "--max-size"),
+                         None if unused_days is None else unused_days * 86400.0, dry_run=dry_run)
+    verb = "would remove" if dry_run else "removed"
+    reporter.table(f"segment cache {cache_dir}{' (dry run)' if dry_run else ''}", ["", "entries", "size"],
+                   [[verb, f"{result.removed_entries:,}", _gigabytes(result.removed_bytes)],
+                    ["kept", f"{result.kept_entries:,}", _gigabytes(result.kept_bytes)]])
+
+
 @command
 def compare(run_dir: Path = typer.Argument(..., help="A featmap run folder (with metrics.json).")):
     """Write comparison.csv and comparison.md (the paper's Tables 1-3 for one run) and print them."""

@@ -10,6 +10,9 @@ the world frame afterwards). Each entry also records its own key: an entry that 
 truncated or unreadable is discarded (and re-made by the caller) instead of being served.
 
 Layout: ``ROOT/<first two hex digits>/<key>.npz``; writes are atomic (a crash never leaves half an entry).
+An entry's modification time is its last use (set when it is written or served), so :meth:`SegmentStore.prune`
+removes the entries used least recently first: those of old extractor code and of deleted drives, which no
+run asks for again, go first.
 """
 
 from __future__ import annotations
@@ -18,8 +21,11 @@ import functools
 import hashlib
 import json
 import os
+import re
 import sys
+import time
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -68,6 +74,27 @@ def scan_key(points: np.ndarray, extractor: Extractor, section) -> str:
     return h.hexdigest()[:40]
 
 
+ENTRY_NAME = re.compile(r"[0-9a-f]{40}\.npz")
+"""The file name of a cache entry (its key and ``.npz``); nothing else in a cache folder is ever removed."""
+
+
+@dataclass(frozen=True)
+class CacheEntry:
+    """One entry on disk: its file, size in bytes and last use (seconds since the epoch)."""
+    path: Path
+    size: int
+    last_use: float
+
+
+@dataclass(frozen=True)
+class PruneResult:
+    """What :meth:`SegmentStore.prune` removed (or would remove, in a dry run) and what it kept."""
+    removed_entries: int
+    removed_bytes: int
+    kept_entries: int
+    kept_bytes: int
+
+
 class SegmentStore:
     """Per-scan extraction results on disk, by content key (``root=None``: a store that keeps nothing).
 
@@ -104,11 +131,16 @@ class SegmentStore:
             with np.load(path, allow_pickle=False) as data:
                 if str(data["key"]) != key:
                     raise ValueError("entry made from other inputs")
-                return ScanSegments.from_arrays({k: data[k] for k in data.files if k != "key"})
+                segments = ScanSegments.from_arrays({k: data[k] for k in data.files if k != "key"})
         except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
             self.discarded.append(f"{path}: {type(exc).__name__}: {exc}")
             path.unlink(missing_ok=True)
             return None
+        try:
+            os.utime(path)                  # its last use, for prune (a read-only cache still serves)
+        except OSError:
+            pass
+        return segments
 
     def put(self, key: str, segments: ScanSegments) -> None:
         if self.root is None:
@@ -120,3 +152,48 @@ class SegmentStore:
                     np.savez(fh, key=np.array(key), **segments.arrays())
         except OSError as exc:
             raise CacheError(f"{path}: cannot write the segment cache ({exc.strerror})") from None
+
+    def entries(self) -> list[CacheEntry]:
+        """Every entry in the cache folder (files named ``<key>.npz`` in its two-digit subfolders), least
+        recently used first; [] for a store that keeps nothing."""
+        if self.root is None:
+            return []
+        found = []
+        for sub in sorted(self.root.iterdir()):
+            if not (len(sub.name) == 2 and sub.is_dir()):
+                continue
+            for path in sub.iterdir():
+                if ENTRY_NAME.fullmatch(path.name) and path.name.startswith(sub.name):
+                    try:
+                        stat = path.stat()
+                    except FileNotFoundError:           # removed meanwhile by another process
+                        continue
+                    found.append(CacheEntry(path, stat.st_size, stat.st_mtime))
+        return sorted(found, key=lambda entry: (entry.last_use, entry.path.name))
+
+    def prune(self, max_bytes: int | None = None, unused_for_s: float | None = None, now: float | None = None,
+              dry_run: bool = False) -> PruneResult:
+        """Remove the entries unused for more than ``unused_for_s`` seconds, then the least recently used
+        ones until the rest take at most ``max_bytes``; with neither, nothing. ``now``: the time to measure
+        from (seconds since the epoch; default the clock). ``dry_run``: only count what would go."""
+        if max_bytes is not None and max_bytes < 0:
+            raise ValueError(f"max_bytes must be >= 0, got {max_bytes}")
+        if unused_for_s is not None and unused_for_s < 0:
+            raise ValueError(f"unused_for_s must be >= 0, got {unused_for_s}")
+        entries = self.entries()
+        now = time.time() if now is None else now
+        total = sum(entry.size for entry in entries)
+        removed, removed_bytes = 0, 0
+        for entry in entries:             # least recently used first: what goes is a prefix of them
+            too_old = unused_for_s is not None and now - entry.last_use > unused_for_s
+            too_big = max_bytes is not None and total - removed_bytes > max_bytes
+            if not (too_old or too_big):
+                break
+            if not dry_run:
+                try:
+                    entry.path.unlink()
+                except FileNotFoundError:
+                    pass
+            removed += 1
+            removed_bytes += entry.size
+        return PruneResult(removed, removed_bytes, len(entries) - removed, total - removed_bytes)

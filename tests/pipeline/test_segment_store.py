@@ -80,3 +80,76 @@ def test_unusable_cache_folders_fail_before_any_work(tmp_path):
     with pytest.raises(CacheError, match="cannot create it"):
         SegmentStore(tmp_path / "file" / "sub")
     assert SegmentStore(None).get("abc") is None
+
+
+def _store_with_entries(root, n: int) -> tuple[SegmentStore, list[str]]:
+    """A store holding ``n`` entries last used 1, 2, ... n days ago (the first the most recent)."""
+    import os
+    import time
+
+    store = SegmentStore(root)
+    keys = [scan_key(POINTS[: 10 + i], EXTRACTOR, RansacPlanesConfig()) for i in range(n)]
+    now = time.time()
+    for days, key in enumerate(keys, start=1):
+        store.put(key, SEGS)
+        os.utime(store.path(key), (now - days * 86400, now - days * 86400))
+    return store, keys
+
+
+def test_prune_removes_the_least_recently_used_entries_first(tmp_path):
+    store, keys = _store_with_entries(tmp_path / "cache", 4)
+    assert store.get(keys[3]) is not None              # served now: the most recently used
+    size = store.entries()[0].size
+    assert [e.path for e in store.entries()] == [store.path(k) for k in (keys[2], keys[1], keys[0], keys[3])]
+    (tmp_path / "cache" / keys[0][:2] / "notes.txt").write_text("not an entry")
+
+    dry = store.prune(max_bytes=2 * size, dry_run=True)
+    assert (dry.removed_entries, dry.kept_entries, dry.kept_bytes) == (2, 2, 2 * size)
+    assert len(store.entries()) == 4                   # a dry run removes nothing
+
+    result = store.prune(max_bytes=2 * size)
+    assert result == dry
+    assert {e.path for e in store.entries()} == {store.path(keys[0]), store.path(keys[3])}
+    assert store.get(keys[3]) is not None and store.get(keys[2]) is None
+    assert (tmp_path / "cache" / keys[0][:2] / "notes.txt").exists()     # only entries are removed
+    assert store.prune(max_bytes=0).kept_entries == 0
+
+
+def test_prune_removes_entries_unused_for_longer_than_asked(tmp_path):
+    store, keys = _store_with_entries(tmp_path / "cache", 4)
+    result = store.prune(unused_for_s=2.5 * 86400)          # used 3 and 4 days ago: removed
+    assert (result.removed_entries, result.kept_entries) == (2, 2)
+    assert {e.path for e in store.entries()} == {store.path(keys[0]), store.path(keys[1])}
+    assert store.prune(unused_for_s=10 * 86400).removed_entries == 0     # nothing that old
+    assert store.prune().removed_entries == 0                             # nothing asked: nothing removed
+    with pytest.raises(ValueError, match="max_bytes"):
+        store.prune(max_bytes=-1)
+    assert SegmentStore(None).entries() == []
+
+
+def test_the_cache_command_shows_and_prunes(tmp_path):
+    from typer.testing import CliRunner
+
+    from featmap.cli import app
+
+    store, keys = _store_with_entries(tmp_path / "cache", 3)
+    runner = CliRunner()
+    shown = runner.invoke(app, ["cache", "--cache-dir", str(tmp_path / "cache")])
+    assert shown.exit_code == 0 and "3" in shown.output
+    pruned = runner.invoke(app, ["cache", "--cache-dir", str(tmp_path / "cache"), "--unused-days", "1.5"])
+    assert pruned.exit_code == 0 and "removed" in pruned.output
+    assert [e.path for e in store.entries()] == [store.path(keys[0])]
+    bad = runner.invoke(app, ["cache", "--cache-dir", str(tmp_path / "cache"), "--max-size", "lots"])
+    assert bad.exit_code == 2 and "--max-size 'lots': not a size" in bad.output
+    missing = runner.invoke(app, ["cache", "--cache-dir", str(tmp_path / "nowhere"), "--max-size", "1GB"])
+    assert missing.exit_code == 2 and "no such folder" in missing.output and not (tmp_path / "nowhere").exists()
+    assert len(store.entries()) == 1
+
+
+def test_sizes_parse_in_decimal_and_binary_units():
+    from featmap.cli import parse_size
+
+    assert parse_size("4GB", "--max-size") == 4 * 10**9
+    assert parse_size("1.5GiB", "--max-size") == int(1.5 * 2**30)
+    assert parse_size("500m", "--max-size") == 500 * 10**6
+    assert parse_size("0", "--max-size") == 0
