@@ -471,11 +471,14 @@ def cache(
 
     from featmap.pipeline import SegmentStore
 
-    if not cache_dir.is_dir():
+    pruning = max_size is not None or unused_days is not None
+    if dry_run and not pruning:
+        _fail("--dry-run: give --max-size or --unused-days (what would be removed)")
+    if not cache_dir.is_dir():       # (never created here)
         _fail(f"--cache-dir {cache_dir}: no such folder")
-    store = SegmentStore(cache_dir)
+    store = SegmentStore(cache_dir, writable=pruning)
     reporter = _reporter()
-    if max_size is None and unused_days is None:
+    if not pruning:
         entries = store.entries()
         total = sum(entry.size for entry in entries)
         when = (lambda t: time.strftime("%Y-%m-%d %H:%M", time.localtime(t)))

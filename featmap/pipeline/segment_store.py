@@ -100,16 +100,22 @@ class SegmentStore:
 
     Args:
         root: cache folder; created when missing.
+        writable: False to only list it (:meth:`entries`): then it must exist and is never created.
     Raises:
-        CacheError: when ``root`` is a file or cannot be written (checked here, before any work).
+        CacheError: when ``root`` is a file or cannot be written (checked here, before any work), or
+            (``writable=False``) is no folder.
     """
 
-    def __init__(self, root: str | Path | None):
+    def __init__(self, root: str | Path | None, writable: bool = True):
         self.root = None if root is None else Path(root)
         self.discarded: list[str] = []
         if self.root is not None:
             if self.root.exists() and not self.root.is_dir():
                 raise CacheError(f"--cache-dir {self.root}: exists and is not a folder")
+            if not writable:
+                if not self.root.is_dir():
+                    raise CacheError(f"--cache-dir {self.root}: no such folder")
+                return
             try:
                 self.root.mkdir(parents=True, exist_ok=True)
             except OSError as exc:
@@ -125,13 +131,13 @@ class SegmentStore:
         if self.root is None:
             return None
         path = self.path(key)
-        if not path.exists():
-            return None
         try:
             with np.load(path, allow_pickle=False) as data:
                 if str(data["key"]) != key:
                     raise ValueError("entry made from other inputs")
                 segments = ScanSegments.from_arrays({k: data[k] for k in data.files if k != "key"})
+        except FileNotFoundError:          # none (or pruned meanwhile by `featmap cache`): a plain miss
+            return None
         except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
             self.discarded.append(f"{path}: {type(exc).__name__}: {exc}")
             path.unlink(missing_ok=True)
@@ -191,9 +197,11 @@ class SegmentStore:
                 break
             if not dry_run:
                 try:
+                    if entry.path.stat().st_mtime != entry.last_use:
+                        continue                         # a run used it since it was listed: keep it
                     entry.path.unlink()
-                except FileNotFoundError:
-                    pass
+                except FileNotFoundError:            # removed meanwhile (another prune)
+                    continue
             removed += 1
             removed_bytes += entry.size
         return PruneResult(removed, removed_bytes, len(entries) - removed, total - removed_bytes)

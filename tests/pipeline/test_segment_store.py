@@ -1,5 +1,7 @@
 """The content-keyed segment cache: keys change with what the result depends on; bad entries are re-made."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -135,7 +137,7 @@ def test_the_cache_command_shows_and_prunes(tmp_path):
     store, keys = _store_with_entries(tmp_path / "cache", 3)
     runner = CliRunner()
     shown = runner.invoke(app, ["cache", "--cache-dir", str(tmp_path / "cache")])
-    assert shown.exit_code == 0 and "3" in shown.output
+    assert shown.exit_code == 0 and re.search(r"│\s+3\s+│", shown.output)           # the entries' cell
     pruned = runner.invoke(app, ["cache", "--cache-dir", str(tmp_path / "cache"), "--unused-days", "1.5"])
     assert pruned.exit_code == 0 and "removed" in pruned.output
     assert [e.path for e in store.entries()] == [store.path(keys[0])]
@@ -143,6 +145,10 @@ def test_the_cache_command_shows_and_prunes(tmp_path):
     assert bad.exit_code == 2 and "--max-size 'lots': not a size" in bad.output
     missing = runner.invoke(app, ["cache", "--cache-dir", str(tmp_path / "nowhere"), "--max-size", "1GB"])
     assert missing.exit_code == 2 and "no such folder" in missing.output and not (tmp_path / "nowhere").exists()
+    negative = runner.invoke(app, ["cache", "--cache-dir", str(tmp_path / "cache"), "--unused-days", "-1"])
+    assert negative.exit_code == 2 and "--unused-days" in negative.output
+    dry = runner.invoke(app, ["cache", "--cache-dir", str(tmp_path / "cache"), "--dry-run"])
+    assert dry.exit_code == 2 and "--dry-run: give --max-size or --unused-days" in dry.output
     assert len(store.entries()) == 1
 
 
@@ -153,3 +159,32 @@ def test_sizes_parse_in_decimal_and_binary_units():
     assert parse_size("1.5GiB", "--max-size") == int(1.5 * 2**30)
     assert parse_size("500m", "--max-size") == 500 * 10**6
     assert parse_size("0", "--max-size") == 0
+
+
+def test_prune_honours_both_limits_together_and_keeps_what_a_run_used_meanwhile(tmp_path):
+    store, keys = _store_with_entries(tmp_path / "cache", 4)         # used 1, 2, 3, 4 days ago
+    size = store.entries()[0].size
+    # the age limit alone would remove two, the size limit alone one: two go
+    result = store.prune(max_bytes=3 * size, unused_for_s=2.5 * 86400, dry_run=True)
+    assert (result.removed_entries, result.kept_entries) == (2, 2)
+    # the age limit alone would remove one, the size limit alone three: three go
+    result = store.prune(max_bytes=1 * size, unused_for_s=3.5 * 86400, dry_run=True)
+    assert (result.removed_entries, result.kept_entries) == (3, 1)
+
+    listed = store.entries()
+    assert store.get(keys[3]) is not None                   # served while a prune was deciding
+    store.entries = lambda: listed                           # (that prune's listing, made before the run used it)
+    result = store.prune(max_bytes=3 * size)
+    assert (result.removed_entries, result.kept_entries) == (1, 3)
+    assert store.path(keys[3]).exists() and not store.path(keys[2]).exists()
+
+
+def test_an_entry_removed_meanwhile_is_a_plain_miss_and_a_read_only_cache_can_be_listed(tmp_path):
+    store, keys = _store_with_entries(tmp_path / "cache", 1)
+    store.path(keys[0]).unlink()
+    assert store.get(keys[0]) is None and store.discarded == []       # not reported as a corrupt entry
+    listing = SegmentStore(tmp_path / "cache", writable=False)
+    assert listing.entries() == []
+    with pytest.raises(CacheError, match="no such folder"):
+        SegmentStore(tmp_path / "nowhere", writable=False)
+    assert not (tmp_path / "nowhere").exists()
