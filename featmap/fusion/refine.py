@@ -277,7 +277,7 @@ def merge_consistent(segments: np.ndarray, labels: np.ndarray, fused: np.ndarray
     pairs = cKDTree(samples).query_pairs(reach, output_type="ndarray")
     if len(pairs) == 0:
         return unchanged
-    a, b = owner[pairs[:, 0]].astype(np.int64), owner[pairs[:, 1]].astype(np.int64)
+    a, b = owner[pairs[:, 0]].astype(np.int64, copy=False), owner[pairs[:, 1]].astype(np.int64, copy=False)
     keep = a != b
     pair_keys = np.unique(np.minimum(a[keep], b[keep]) * n + np.maximum(a[keep], b[keep]))   # (lower, higher)
     ab = np.stack(np.divmod(pair_keys, n), axis=1)
