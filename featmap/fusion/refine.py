@@ -36,11 +36,11 @@ from dataclasses import replace
 
 import numpy as np
 from pydantic import Field
-from scipy.spatial import cKDTree
 
 from featmap.config import Section
 from featmap.fusion.base import (FusionResult, SupportRule, SupportViews, fit_clusters, relabel_by_first_appearance,
                                  validate_input)
+from featmap.fusion.close_pairs import close_owner_pairs
 from featmap.fusion.gaps import observed_length, split_at_gaps, split_at_unresolved_gaps, trim_coarse_ends
 from featmap.geometry import segment_lengths
 
@@ -274,13 +274,7 @@ def merge_consistent(segments: np.ndarray, labels: np.ndarray, fused: np.ndarray
     t = (np.arange(counts.sum()) - start[owner]) / (counts[owner] - 1)
     samples = fused[owner, :2] + t[:, None] * (fused[owner, 2:] - fused[owner, :2])
     reach = max(config.merge_gap_m, config.max_offset_m) + 0.5 * step
-    pairs = cKDTree(samples).query_pairs(reach, output_type="ndarray")
-    if len(pairs) == 0:
-        return unchanged
-    a, b = owner[pairs[:, 0]].astype(np.int64, copy=False), owner[pairs[:, 1]].astype(np.int64, copy=False)
-    keep = a != b
-    pair_keys = np.unique(np.minimum(a[keep], b[keep]) * n + np.maximum(a[keep], b[keep]))   # (lower, higher)
-    ab = np.stack(np.divmod(pair_keys, n), axis=1)
+    ab = np.stack(np.divmod(close_owner_pairs(samples, owner, reach, n), n), axis=1)     # (lower, higher), sorted
     if len(ab) == 0:
         return unchanged
     d = fused[:, 2:] - fused[:, :2]

@@ -21,6 +21,7 @@ from featmap.config import Section
 from featmap.errors import ConfigError
 from featmap.fusion import density, meanshift, proposed
 from featmap.fusion.base import FusionMethod, FusionResult, SupportRule, SupportViews
+from featmap.fusion.close_pairs import prepare as prepare_close_pairs
 from featmap.fusion.corners import CornerConfig, optimise_corners
 from featmap.fusion.refine import RefineConfig, refine
 from featmap.fusion.visibility import sensor_xy_column
@@ -78,8 +79,10 @@ def working_origin(segments: np.ndarray) -> np.ndarray:
 
 
 def prepare_method(name: str) -> None:
-    """Import method ``name``'s libraries and load its compiled code (a one-off cost per process)."""
+    """Import method ``name``'s libraries and load its compiled code and the shared refinement's (a one-off
+    cost per process)."""
     get_method(name).prepare()
+    prepare_close_pairs()
 
 
 def fuse(name: str, segments, scan, config: FusionConfig = FusionConfig(),  # type: ignore[valid-type]
