@@ -474,9 +474,7 @@ def cache(
     pruning = max_size is not None or unused_days is not None
     if dry_run and not pruning:
         _fail("--dry-run: give --max-size or --unused-days (what would be removed)")
-    if not cache_dir.is_dir():       # (never created here)
-        _fail(f"--cache-dir {cache_dir}: no such folder")
-    store = SegmentStore(cache_dir, writable=pruning)
+    store = SegmentStore(cache_dir, writable=False)          # (never created here; a missing one is an error)
     reporter = _reporter()
     if not pruning:
         entries = store.entries()

@@ -100,7 +100,8 @@ class SegmentStore:
 
     Args:
         root: cache folder; created when missing.
-        writable: False to only list it (:meth:`entries`): then it must exist and is never created.
+        writable: False for a cache that must exist already (listing or pruning it, `featmap cache`): it is
+            then never created, nor checked for writing (a failed removal is an ``OSError`` naming the file).
     Raises:
         CacheError: when ``root`` is a file or cannot be written (checked here, before any work), or
             (``writable=False``) is no folder.
