@@ -487,9 +487,12 @@ def cache(
     result = store.prune(None if max_size is None else parse_size(max_size, "--max-size"),
                          None if unused_days is None else unused_days * 86400.0, dry_run=dry_run)
     verb = "would remove" if dry_run else "removed"
-    reporter.table(f"segment cache {cache_dir}{' (dry run)' if dry_run else ''}", ["", "entries", "size"],
-                   [[verb, f"{result.removed_entries:,}", _gigabytes(result.removed_bytes)],
-                    ["kept", f"{result.kept_entries:,}", _gigabytes(result.kept_bytes)]])
+    rows = [[verb, f"{result.removed_entries:,}", _gigabytes(result.removed_bytes)],
+            ["kept", f"{result.kept_entries:,}", _gigabytes(result.kept_bytes)]]
+    if result.removed_leftovers:
+        rows.append([f"{verb} (temporary files of killed runs)", f"{result.removed_leftovers:,}",
+                     _gigabytes(result.leftover_bytes)])
+    reporter.table(f"segment cache {cache_dir}{' (dry run)' if dry_run else ''}", ["", "entries", "size"], rows)
 
 
 @command

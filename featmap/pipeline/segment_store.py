@@ -75,7 +75,12 @@ def scan_key(points: np.ndarray, extractor: Extractor, section) -> str:
 
 
 ENTRY_NAME = re.compile(r"[0-9a-f]{40}\.npz")
-"""The file name of a cache entry (its key and ``.npz``); nothing else in a cache folder is ever removed."""
+"""The file name of a cache entry (its key and ``.npz``)."""
+LEFTOVER_NAME = re.compile(r"\.[0-9a-f]{40}\.npz\.[A-Za-z0-9_]+\.tmp")
+"""The name of the hidden temporary twin an entry is written through (:func:`featmap.io.atomic.atomic_path`),
+left behind only by a process killed while writing. Nothing but entries and these is ever removed."""
+LEFTOVER_AGE_S = 3600.0
+"""A temporary twin older than this (seconds) belongs to no write still going on."""
 
 
 @dataclass(frozen=True)
@@ -88,11 +93,14 @@ class CacheEntry:
 
 @dataclass(frozen=True)
 class PruneResult:
-    """What :meth:`SegmentStore.prune` removed (or would remove, in a dry run) and what it kept."""
+    """What :meth:`SegmentStore.prune` removed (or would remove, in a dry run) and what it kept; leftovers:
+    the temporary files of killed writes it removed."""
     removed_entries: int
     removed_bytes: int
     kept_entries: int
     kept_bytes: int
+    removed_leftovers: int = 0
+    leftover_bytes: int = 0
 
 
 class SegmentStore:
@@ -160,9 +168,9 @@ class SegmentStore:
         except OSError as exc:
             raise CacheError(f"{path}: cannot write the segment cache ({exc.strerror})") from None
 
-    def entries(self) -> list[CacheEntry]:
-        """Every entry in the cache folder (files named ``<key>.npz`` in its two-digit subfolders), least
-        recently used first; [] for a store that keeps nothing."""
+    def _files(self, name: re.Pattern) -> list[CacheEntry]:
+        """The files of the two-digit subfolders whose name matches ``name`` (and starts, past a leading
+        dot, with their subfolder's digits), least recently modified first."""
         if self.root is None:
             return []
         found = []
@@ -170,7 +178,7 @@ class SegmentStore:
             if not (len(sub.name) == 2 and sub.is_dir()):
                 continue
             for path in sub.iterdir():
-                if ENTRY_NAME.fullmatch(path.name) and path.name.startswith(sub.name):
+                if name.fullmatch(path.name) and path.name.lstrip(".").startswith(sub.name):
                     try:
                         stat = path.stat()
                     except FileNotFoundError:           # removed meanwhile by another process
@@ -178,11 +186,22 @@ class SegmentStore:
                     found.append(CacheEntry(path, stat.st_size, stat.st_mtime))
         return sorted(found, key=lambda entry: (entry.last_use, entry.path.name))
 
+    def entries(self) -> list[CacheEntry]:
+        """Every entry in the cache folder (files named ``<key>.npz`` in its two-digit subfolders), least
+        recently used first; [] for a store that keeps nothing."""
+        return self._files(ENTRY_NAME)
+
+    def leftovers(self, now: float | None = None) -> list[CacheEntry]:
+        """The temporary files of writes killed half-way (older than :data:`LEFTOVER_AGE_S`)."""
+        now = time.time() if now is None else now
+        return [f for f in self._files(LEFTOVER_NAME) if now - f.last_use > LEFTOVER_AGE_S]
+
     def prune(self, max_bytes: int | None = None, unused_for_s: float | None = None, now: float | None = None,
               dry_run: bool = False) -> PruneResult:
         """Remove the entries unused for more than ``unused_for_s`` seconds, then the least recently used
-        ones until the rest take at most ``max_bytes``; with neither, nothing. ``now``: the time to measure
-        from (seconds since the epoch; default the clock). ``dry_run``: only count what would go."""
+        ones until the rest take at most ``max_bytes`` (with neither, no entry), and the :meth:`leftovers`
+        of killed writes. ``now``: the time to measure from (seconds since the epoch; default the clock).
+        ``dry_run``: only count what would go."""
         if max_bytes is not None and max_bytes < 0:
             raise ValueError(f"max_bytes must be >= 0, got {max_bytes}")
         if unused_for_s is not None and unused_for_s < 0:
@@ -205,4 +224,9 @@ class SegmentStore:
                     continue
             removed += 1
             removed_bytes += entry.size
-        return PruneResult(removed, removed_bytes, len(entries) - removed, total - removed_bytes)
+        leftovers = self.leftovers(now)
+        if not dry_run:
+            for leftover in leftovers:
+                leftover.path.unlink(missing_ok=True)
+        return PruneResult(removed, removed_bytes, len(entries) - removed, total - removed_bytes, len(leftovers),
+                           sum(leftover.size for leftover in leftovers))

@@ -188,3 +188,27 @@ def test_an_entry_removed_meanwhile_is_a_plain_miss_and_a_read_only_cache_can_be
     with pytest.raises(CacheError, match="no such folder"):
         SegmentStore(tmp_path / "nowhere", writable=False)
     assert not (tmp_path / "nowhere").exists()
+
+
+def test_prune_removes_the_temporary_files_of_killed_writes_and_nothing_else(tmp_path):
+    import os
+    import time
+
+    store, keys = _store_with_entries(tmp_path / "cache", 2)
+    folder = store.path(keys[0]).parent
+    old_leftover = folder / f".{keys[0]}.npz.ab12cd_3.tmp"             # a write killed two hours ago
+    fresh_leftover = folder / f".{keys[0]}.npz.zz99yy00.tmp"           # a write going on now
+    other = folder / ".notes.tmp"
+    for path in (old_leftover, fresh_leftover, other):
+        path.write_bytes(b"x" * 10)
+    hours_ago = time.time() - 7200
+    os.utime(old_leftover, (hours_ago, hours_ago))
+    os.utime(other, (hours_ago, hours_ago))
+    assert [leftover.path for leftover in store.leftovers()] == [old_leftover]
+
+    dry = store.prune(dry_run=True)
+    assert (dry.removed_entries, dry.removed_leftovers, dry.leftover_bytes) == (0, 1, 10) and old_leftover.exists()
+    result = store.prune()
+    assert (result.removed_entries, result.kept_entries, result.removed_leftovers) == (0, 2, 1)
+    assert not old_leftover.exists() and fresh_leftover.exists() and other.exists()
+    assert len(store.entries()) == 2
