@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from featmap.fusion.link_forest import compiled
+from featmap.fusion.link_forest import _grow, compiled
 
 
 @compiled()
@@ -40,9 +40,7 @@ def _close_owner_pairs_kernel(points, owner, cell_keys, cell_start, row_stride, 
                     dy = points[i, 1] - points[j, 1]
                     if dx * dx + dy * dy <= reach2:
                         if m == out.shape[0]:
-                            grown = np.empty(2 * m, dtype=np.int64)
-                            grown[:m] = out
-                            out = grown
+                            out = _grow(out)
                         lo, hi = min(owner[i], owner[j]), max(owner[i], owner[j])
                         out[m] = lo * n_owners + hi
                         m += 1

@@ -49,3 +49,11 @@ def test_the_same_pairs_as_a_kd_tree(seed, n_points, n_owners, reach, on_a_grid)
     owner = rng.integers(0, n_owners, n_points)
     assert np.array_equal(close_owner_pairs(points, owner, reach, n_owners),
                           _kd_tree_pairs(points, owner, reach, n_owners))
+
+
+def test_many_close_pairs_grow_the_buffer_and_stay_the_same():
+    rng = np.random.default_rng(3)
+    points = rng.uniform(0, 3, (3000, 2))              # about 127k pairs within 0.3 m: far past the first buffer
+    owner = np.arange(3000)
+    keys = close_owner_pairs(points, owner, 0.3, 3000)
+    assert len(keys) > 100_000 and np.array_equal(keys, _kd_tree_pairs(points, owner, 0.3, 3000))
