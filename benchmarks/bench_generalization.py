@@ -638,7 +638,8 @@ def _run(args, console: Console) -> int:
         wall_seconds += batch_seconds
         extracted_now += batch_now
         scans += batch_scans
-        for i, (_, variant_config) in enumerate(variants):
+        for i, (text, variant_config) in enumerate(variants):
+            console.print(f"variant {text}" + (f" (worlds {', '.join(map(str, batch))})" if args.drop_drives else "") + ":")
             scored_variants[i] += score_split(args, batch, variant_config, methods, store, workers)[0]
         if args.drop_drives:
             for seed in batch:

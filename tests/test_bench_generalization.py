@@ -155,9 +155,12 @@ def test_drop_drives_keeps_at_most_workers_drives_on_disk(bench, tmp_path, monke
     assert bench.main(argv) == 0
     assert on_disk_while_scored == [((1, 2), ["procedural_1", "procedural_2"])] * 2 + [((3,), ["procedural_3"])] * 2
     assert not any((tmp_path / "tuning").iterdir())
-    assert "variant" in capsys.readouterr().out
+    out = capsys.readouterr().out           # each variant's run of each batch is announced before it starts
+    assert "variant fusion.proposed.gamma=0.3 (worlds 1, 2):" in out
+    assert "variant fusion.proposed.gamma=0.3 (worlds 3):" in out
     # without the flag every drive is simulated first and kept
     on_disk_while_scored.clear()
     assert bench.main(argv[:-1]) == 0
     assert on_disk_while_scored[0] == ((1, 2, 3), ["procedural_1", "procedural_2", "procedural_3"])
     assert len(list((tmp_path / "tuning").iterdir())) == 3
+    assert "variant fusion.proposed.gamma=0.3:" in capsys.readouterr().out
