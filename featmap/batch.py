@@ -332,10 +332,7 @@ def plan_batch(path: str | Path, out: str | Path | None = None, config: str | Pa
 
     path = Path(path)
     spec = load_batch(path)
-    try:
-        methods = tuple(resolve_methods(spec.methods))
-    except ConfigError as exc:
-        raise ConfigError(f"{path}: methods: {exc}") from None
+    methods = tuple(resolve_methods(spec.methods, f"{path}: methods"))
     folder = Path(out or spec.out or Path("runs") / "batch" / path.stem)
     what = "--out" if out else f"{path}: out"
     check_folder_path(folder, what)

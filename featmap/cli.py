@@ -428,9 +428,13 @@ def figures(
                 tile_provider(tiles)
             except ValueError as exc:
                 _fail(f"--tiles {tiles}: {exc}")
+        if config is None and not (run_dir / "config.yaml").is_file():
+            _fail(f"{run_dir}: no config.yaml to apply --set / --tiles to (not a featmap run folder?); "
+                  "give --config")
         base = load_config(config if config is not None else run_dir / "config.yaml").model_dump(mode="json")
         overrides = list(set_ or []) + ([f"output.tile_source={tiles}"] if tiles is not None else [])
-        cfg = config_from_dict(apply_overrides(base, overrides, FeatmapConfig), str(config or run_dir / "config.yaml"))
+        changed_by = " / ".join(flag for flag, given in (("--set", set_), ("--tiles", tiles is not None)) if given)
+        cfg = config_from_dict(apply_overrides(base, overrides, FeatmapConfig), changed_by or str(config))
     run_data = load_run(run_dir, cfg)
     inputs = FigureInputs(segments=run_data.segments, methods=list(run_data.fused), fusion=run_data.config.fusion,
                           trajectory=run_data.trajectory, frame=run_data.frame, truth=run_data.truth,

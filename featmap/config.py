@@ -21,7 +21,7 @@ from typing import Any, Iterable, TypeVar
 import yaml
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from featmap.errors import ConfigError
+from featmap.errors import ConfigError, shown
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -81,7 +81,7 @@ def format_validation_error(error: ValidationError, source: str, model: type[Bas
             msg = item["msg"]
             if "expected" in item.get("ctx", {}):
                 msg = f"must be one of {item['ctx']['expected']}"
-            parts.append(f"'{key}' {msg[0].lower() + msg[1:]} (got {item.get('input')!r})")
+            parts.append(f"'{key}' {msg[0].lower() + msg[1:]} (got {shown(item.get('input'))})")
     return f"{source}: " + "; ".join(parts)
 
 
@@ -100,6 +100,8 @@ def parse_override(text: str) -> tuple[list[str], Any]:
         value = yaml.safe_load(raw) if raw.strip() else ""
     except yaml.YAMLError:
         value = raw
+    except RecursionError:
+        raise ConfigError(f"--set {shown(text)}: the value is nested too deeply") from None
     if isinstance(value, str) and _EXPONENT_NUMBER.fullmatch(raw.strip()):
         value = float(raw)                          # YAML 1.1 reads an unquoted 1e6 (no dot) as a string
     return key.split("."), value
@@ -217,6 +219,8 @@ def load_yaml_text(text: str, source: str) -> Any:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         raise InvalidYamlError(source, None if mark is None else mark.line + 1, yaml_problem(exc)) from None
+    except RecursionError:
+        raise InvalidYamlError(source, None, "nested too deeply") from None
 
 
 def read_yaml_mapping(path: str | Path, what: str = "config file") -> dict[str, Any]:

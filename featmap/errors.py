@@ -6,6 +6,11 @@ file, flag or config key to fix. Anything else that escapes is a bug and keeps i
 
 from __future__ import annotations
 
+import reprlib
+
+_SHOWN = reprlib.Repr()
+_SHOWN.maxlevel, _SHOWN.maxstring, _SHOWN.maxother, _SHOWN.maxlong = 2, 60, 60, 40
+_SHOWN.maxlist = _SHOWN.maxtuple = _SHOWN.maxdict = _SHOWN.maxset = _SHOWN.maxfrozenset = 4
 
 class FeatmapError(Exception):
     """Base class of all errors featmap reports to users as one line."""
@@ -35,3 +40,10 @@ class WorldError(FeatmapError):
 
 class DownloadError(FeatmapError):
     """A failed or unverifiable download."""
+
+
+def shown(value) -> str:
+    """``repr(value)`` cut short for an error message (at most 60 characters per item, four items per
+    container and two levels, each cut marked ``...``): a value read from a user's file can be any size, YAML aliases
+    can make it exponentially large, and the message stays one short line."""
+    return _SHOWN.repr(value)

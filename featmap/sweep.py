@@ -48,7 +48,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from featmap.config import apply_overrides, closest_key, leaf_keys, read_yaml_mapping
-from featmap.errors import ConfigError, FeatmapError
+from featmap.errors import ConfigError, DatasetError, FeatmapError, shown
 from featmap.evaluation import Evaluator, Reference
 from featmap.fusion import FUSION_METHODS, fuse
 from featmap.fusion.registry import fuse_columns
@@ -109,8 +109,8 @@ class SweepSpec(BaseModel):
     truth: Optional[str] = None
     methods: list[str] = Field(["proposed"], min_length=1)
     grid: dict[str, Any]
-    samples: int = Field(0, ge=0)
-    seed: int = 0
+    samples: int = Field(0, ge=0, le=MAX_COMBINATIONS)
+    seed: int = Field(0, ge=0)
     select: Select = Select()
 
     @model_validator(mode="after")
@@ -134,7 +134,7 @@ class SweepSpec(BaseModel):
                                      f"{err['msg'].removeprefix('Value error, ')}") from None
             elif not isinstance(val, list):
                 raise ValueError(f"grid key '{key}': expected a list of values or {{start, stop, num|step}}, "
-                                 f"got {val!r}")
+                                 f"got {shown(val)}")
         return self
 
 
@@ -278,7 +278,11 @@ def _evaluate(task: tuple[SweepInputs, str, str, dict]) -> tuple[str, dict]:
 def _read_log(log: Path, identity: dict, out: Path) -> dict[str, dict]:
     """Finished rows of an interrupted sweep (``results.jsonl``); another sweep's log is refused."""
     done: dict[str, dict] = {}
-    lines = log.read_text().splitlines()
+    try:
+        lines = log.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"--out {out}: cannot read its {log.name} ({exc}); choose another --out or delete it"
+                          ) from None
     try:
         header = json.loads(lines[0]) if lines else None
     except json.JSONDecodeError:
@@ -408,7 +412,10 @@ def load_inputs(spec: SweepSpec, spec_path: Path, base: FeatmapConfig, executor:
     else:
         date, drive_id = parse_drive(spec.drive, f"{spec_path}: drive:")
         source_spec = SourceSpec("kitti_raw", str(Path(spec.data_dir) / date / f"{spec.drive}_sync"), spec.frames)
-    source = open_source(source_spec, reporter)
+    try:
+        source = open_source(source_spec, reporter)
+    except DatasetError as exc:         # its message names the flag a run takes (--frames, --dataset): say which file
+        raise DatasetError(f"{spec_path}: {exc}") from None
     extraction = extract_source(source, base.extraction, SegmentStore(cache_dir), executor, reporter)
     poses = refine_extraction(extraction, base.refinement).poses       # the poses a run would fuse with
     table = extraction.world_table(poses)

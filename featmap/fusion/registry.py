@@ -43,8 +43,9 @@ def get_method(name: str) -> FusionMethod:
         raise ConfigError(f"unknown method '{name}'; allowed: {', '.join(FUSION_METHODS)} or all") from None
 
 
-def resolve_methods(spec: str | list[str] | None) -> list[str]:
-    """Turn ``--method`` values ("all", "proposed", "proposed,density", a list) into method names."""
+def resolve_methods(spec: str | list[str] | None, flag: str = "--method") -> list[str]:
+    """Turn ``--method`` values ("all", "proposed", "proposed,density", a list) into method names; errors
+    name ``flag`` (where the values came from)."""
     if spec is None:
         return list(FUSION_METHODS)
     items = [spec] if isinstance(spec, str) else list(spec)
@@ -56,11 +57,12 @@ def resolve_methods(spec: str | list[str] | None) -> list[str]:
                 continue
             if part == "all":
                 names.extend(FUSION_METHODS)
+            elif part not in FUSION_METHODS:
+                raise ConfigError(f"{flag}: unknown method '{part}'; allowed: {', '.join(FUSION_METHODS)} or all")
             else:
-                get_method(part)
                 names.append(part)
     if not names:
-        raise ConfigError(f"--method: no method given; allowed: {', '.join(FUSION_METHODS)} or all")
+        raise ConfigError(f"{flag}: no method given; allowed: {', '.join(FUSION_METHODS)} or all")
     return list(dict.fromkeys(names))
 
 

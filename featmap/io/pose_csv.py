@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from featmap.errors import InputFileError
+from featmap.geometry import MAX_COORDINATE_M
 
 
 def trajectory_csv_text(frames: list[int], poses: np.ndarray) -> str:
@@ -59,6 +60,9 @@ def _read_table(path: Path, kind: str, header: str) -> np.ndarray:
                         raise InputFileError(path, f"{what} (not a number: {cell.strip()[:40]!r})", line_number) from None
                 if not all(math.isfinite(v) for v in values):
                     raise InputFileError(path, f"{what} (a value that is not a finite number)", line_number)
+                if any(abs(v) > MAX_COORDINATE_M for v in values[1:]):      # (the frame column: see its reader)
+                    raise InputFileError(path, f"{what} (a value beyond {MAX_COORDINATE_M:g}: no pose lies that far)",
+                                         line_number)
                 rows.append(values)
     except (OSError, UnicodeDecodeError) as exc:
         raise InputFileError(path, f"{what} ({exc})") from None

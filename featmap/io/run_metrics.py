@@ -13,7 +13,7 @@ from typing import Optional, Union
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from featmap.errors import InputFileError
+from featmap.errors import InputFileError, shown
 from featmap.geo import GeoFrame
 from featmap.io.atomic import atomic_write_text
 from featmap.io.jsonfile import read_json, validate_record
@@ -137,7 +137,11 @@ def read_run_metrics(path: str | Path) -> RunMetrics:
     data = read_json(path, "not found: is this a featmap run folder? (featmap run writes it)")
     if not isinstance(data, dict):
         raise InputFileError(path, "expected a JSON object written by featmap run")
-    if data.get("schema_version") != SCHEMA_VERSION:
-        raise InputFileError(path, f"written by another featmap version (schema {data.get('schema_version', 1)}, "
+    version = data.get("schema_version", 1)
+    if type(version) is not int:        # (a bool is no version either)
+        raise InputFileError(path, f"not a featmap metrics file: 'schema_version' must be a whole number, "
+                                   f"got {shown(version)}")
+    if version != SCHEMA_VERSION:
+        raise InputFileError(path, f"written by another featmap version (schema {version}, "
                                    f"expected {SCHEMA_VERSION}); run featmap run again")
     return validate_record(path, data, RunMetrics, "metrics file")

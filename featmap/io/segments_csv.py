@@ -107,7 +107,10 @@ def _read_numeric_csv(path: Path, required: tuple[str, ...], text_columns: tuple
     except (OSError, UnicodeDecodeError) as exc:
         raise InputFileError(path, f"cannot read ({exc})") from None
     reader = csv.reader(io.StringIO(text))
-    rows = [(reader.line_num, row) for row in reader if any(cell.strip() for cell in row)]
+    try:
+        rows = [(reader.line_num, row) for row in reader if any(cell.strip() for cell in row)]
+    except csv.Error as exc:                                # a cell over the csv module's field size limit
+        raise InputFileError(path, f"not a readable CSV ({exc})", line=reader.line_num) from None
     if not rows:
         raise InputFileError(path, f"empty file; expected a header {','.join(required)}", line=1)
     header_line, header = rows[0][0], [h.strip() for h in rows[0][1]]

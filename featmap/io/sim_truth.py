@@ -20,6 +20,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -89,8 +90,14 @@ def read_walls_csv(path: str | Path) -> TruthWalls:
     if missing:
         raise InputFileError(path, f"missing column(s) {', '.join(missing)}", line=1)
     walls, building, labels, n_returns, observed = [], [], [], [], []
-    rows = list(reader)
+    try:
+        rows = list(reader)
+    except csv.Error as exc:
+        raise InputFileError(path, f"not a readable CSV ({exc})", line=reader.reader.line_num) from None
     for n, row in enumerate(rows, start=2):
+        if None in row.values():
+            raise InputFileError(path, f"malformed row: fewer cells than the header's {len(reader.fieldnames)}",
+                                 line=n)
         try:
             coords = [float(row[c]) for c in ("x1", "y1", "x2", "y2")]
             returns = int(row["n_returns"])
@@ -144,13 +151,19 @@ def coverage_of_frames(path: str | Path, walls: np.ndarray, frames: list[int]) -
     """Observed intervals and return counts per wall (W walls (W, 4)), counting only ``frames``."""
     path = Path(path)
     try:
-        data = np.load(path)
-        frame, bins, count, offset = data["frame"], data["bin"], data["count"], data["bin_offset"]
-        bin_m, min_returns = float(data["bin_m"]), int(data["min_bin_returns"])
-    except (OSError, ValueError, KeyError, EOFError) as exc:
-        raise InputFileError(path, f"unreadable coverage file ({exc})") from None
+        with np.load(path, allow_pickle=False) as data:
+            frame, bins, count, offset = data["frame"], data["bin"], data["count"], data["bin_offset"]
+            bin_m, min_returns = float(data["bin_m"]), int(data["min_bin_returns"])
+    except (OSError, ValueError, KeyError, EOFError, TypeError, zipfile.BadZipFile) as exc:
+        raise InputFileError(path, f"unreadable coverage file ({type(exc).__name__}: {exc})") from None
     if len(offset) != len(walls) + 1:
         raise InputFileError(path, f"covers {len(offset) - 1} walls, walls.csv has {len(walls)}")
+    whole = all(a.dtype.kind in "iu" and a.ndim == 1 for a in (frame, bins, count, offset))
+    if not (whole and len(frame) == len(bins) == len(count) and offset[0] == 0 and (np.diff(offset) >= 0).all()
+            and (count >= 0).all() and ((bins >= 0) & (bins < offset[-1])).all()
+            and math.isfinite(bin_m) and bin_m > 0):
+        raise InputFileError(path, "malformed coverage file: frame, bin and count must be integer columns of one "
+                                   "length, counts >= 0, bins within bin_offset (0, non-decreasing), bin_m > 0")
     keep = np.isin(frame, np.asarray(frames))
     counts = np.bincount(bins[keep], weights=count[keep], minlength=int(offset[-1])).astype(np.int64)
     lengths = np.hypot(walls[:, 2] - walls[:, 0], walls[:, 3] - walls[:, 1])
@@ -260,12 +273,12 @@ def read_observations(truth_dir: str | Path, frames: list[int] | np.ndarray | No
         raise InputFileError(path, "not found: simulate the drive with per-scan truth "
                                    "(simulate_drive(..., scan_observations=True))")
     try:
-        with np.load(path) as data:
+        with np.load(path, allow_pickle=False) as data:
             obs = ScanObservations(data["frame"].astype(np.int64), data["wall"].astype(np.int64),
                                    data["n_hits"].astype(np.int64), data["s_min"], data["s_max"], data["observed_m"],
                                    data["interval_offset"].astype(np.int64), data["interval_start"],
                                    data["interval_end"])
-    except (OSError, ValueError, KeyError) as exc:
+    except (OSError, ValueError, KeyError, EOFError, TypeError, zipfile.BadZipFile) as exc:
         raise InputFileError(path, f"not a per-scan observation file ({type(exc).__name__}: {exc})") from None
     if frames is not None:
         obs = obs.subset(np.isin(obs.frame, np.asarray(frames)))
