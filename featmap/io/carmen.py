@@ -269,6 +269,9 @@ def _parse_robotlaser(path, lineno: int, tokens: list[str]) -> dict:
                                    f"({len(tokens) - 1})", lineno)
     _check_not_too_many(path, lineno, tokens, need, n, "ROBOTLASER1")
     tail = _numbers(path, lineno, tokens[start:need], "ROBOTLASER1")
+    if not (abs(header[1]) <= 2 * np.pi and abs(header[3]) <= 2 * np.pi):
+        raise InputFileError(path, f"ROBOTLASER1: start angle {header[1]:g} and angular resolution {header[3]:g} "
+                                   "must be radians within +-2 pi", lineno)
     angles = header[1] + header[3] * np.arange(n)
     return dict(ranges=ranges, angles=angles, max_range=float(header[4]), pose=tail[0:3], odometry=tail[3:6],
                 timestamp=tail[11], logger_timestamp=_optional_float(tokens, need + 1), line=lineno,

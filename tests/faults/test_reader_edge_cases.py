@@ -167,3 +167,13 @@ def test_a_carmen_line_of_control_bytes_is_named_without_them(tmp_path):
     with pytest.raises(InputFileError) as err:
         read_carmen(path)
     assert "line starts with '\\x00\\x01junk'" in str(err.value) and "\x00" not in str(err.value)
+
+
+@pytest.mark.parametrize("start,resolution", [("-1.0", "1e308"), ("1e300", "0.01"), ("-1.0", "-7")])
+def test_robotlaser_angles_that_are_no_angles_name_their_line(tmp_path, start, resolution):
+    # a resolution of 1e308 rad made every beam angle inf and every point NaN, used without a word
+    record = _robotlaser(5, ["3"] * 5).replace("ROBOTLASER1 0 -1.0 2.0 0.5", f"ROBOTLASER1 0 {start} 2.0 {resolution}")
+    path = tmp_path / "x.log"
+    path.write_text(_robotlaser(5, ["3"] * 5) + record)
+    with pytest.raises(InputFileError, match=r"x.log:2: ROBOTLASER1: start angle .* must be radians within \+-2 pi"):
+        read_carmen(path)
