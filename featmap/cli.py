@@ -153,6 +153,10 @@ def source_spec(drive: str | None, data_dir: Path | None, world: str | None, dat
     from featmap.datasets import SourceSpec
     from featmap.datasets.kitti_raw import drive_folder
 
+    empty = [flag for flag, value in (("--drive", drive), ("--world", world), ("--dataset", dataset),
+                                      ("--source", source)) if value is not None and not value.strip()]
+    if empty:
+        _fail(f"{empty[0]} '': give a value (leave the flag out for the default)")
     given = [flag for flag, value in (("--drive", drive), ("--world", world), ("--dataset", dataset),
                                       ("--carmen", carmen)) if value]
     if len(given) > 1:
@@ -613,6 +617,8 @@ def simulate(
         _fail(f"--drive-id {drive_id!r}: expected four digits, e.g. 0001")
     if out.exists() and not out.is_dir():
         _fail(f"--out {out}: exists and is not a folder")
+    if not world.strip():
+        _fail("--world '': give a built-in world's name or a world file")
     w = load_world(world)
     reporter = _reporter()
     start = time.perf_counter()

@@ -184,7 +184,7 @@ def read_segments_csv(path: str | Path) -> SegmentTable:
     """Read a ``segments.csv``; zero-length rows are skipped and counted (``skipped_zero_length``), and so
     are rows repeating an earlier row's scan and endpoints (``skipped_duplicates``)."""
     path = Path(path)
-    table = _read_numeric_csv(path, SEGMENT_COLUMNS, integer_columns=("scan",), non_negative=("rms", "max_gap"))
+    table = _read_numeric_csv(path, SEGMENT_COLUMNS, integer_columns=("scan",), non_negative=("n_points", "rms", "max_gap"))
     col = {h: table.data[:, k] for k, h in enumerate(table.header)}
     scan = table.integers["scan"]
     segments = np.stack([col[c] for c in ("x1", "y1", "x2", "y2")], axis=1)

@@ -29,6 +29,7 @@ def segments_csv(tmp_path):
     ("scan,x1,y1,x2,y2\n0,1,2,3,4\n0.5,1,2,3,5\n", "segments.csv:3: column 'scan': not an integer"),
     ("scan,x1,y1,x2,y2\n0,1,2,inf,4\n", "segments.csv:2: column 'x2': inf is not a finite number"),
     ("scan,x1,y1,x2,y2\n0,1,2,abc,4\n", "segments.csv:2: column 'x2': not a number"),
+    ("scan,x1,y1,x2,y2,n_points\n0,1,2,3,4,-3\n", "segments.csv:2: column 'n_points': -3 is negative"),
 ])
 def test_malformed_segment_csvs(tmp_path, text, needle):
     path = tmp_path / "segments.csv"
@@ -109,6 +110,8 @@ def test_a_method_that_keeps_nothing_warns(tmp_path, segments_csv):
 
 
 def test_bad_drive_flags(case1_drive, tmp_path):
+    for flag in ("--world", "--drive", "--dataset"):          # an empty --world ran the whole default drive
+        one_line_error(cli("run", flag, "", "--out", tmp_path / "r"), f"{flag} '': give a value")
     one_line_error(cli("run", "--drive", "drive18", "--out", tmp_path / "r"), "expected YYYY_MM_DD_drive_NNNN")
     one_line_error(cli(*run_args(case1_drive, tmp_path / "r", tmp_path / "c", "--frames", "25:100")),
                    "--frames 25:100: 2000_01_01_drive_0001 has 40 frames (0..39)")
@@ -199,6 +202,7 @@ def test_bad_sweep_files(tmp_path, segments_csv):
 
 def test_simulate_flags(tmp_path):
     one_line_error(cli("simulate", "--world", "nowhere", "--out", tmp_path / "s"), "nowhere")
+    one_line_error(cli("simulate", "--world", "", "--out", tmp_path / "s"), "--world '': give a built-in")
     one_line_error(cli("simulate", "--out", tmp_path / "s", "--sensor", "hdl32"), "--sensor 'hdl32'")
     one_line_error(cli("simulate", "--out", tmp_path / "s", "--pose-noise", "big"), "--pose-noise 'big'")
     assert not (tmp_path / "s").exists()
