@@ -65,7 +65,7 @@ MAX_COMBINATIONS = 100_000
 
 
 class Range(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     start: float
     stop: float
     num: Optional[int] = Field(None, ge=1)

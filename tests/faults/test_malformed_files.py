@@ -153,6 +153,14 @@ def test_sweep_files_that_would_hang_or_cannot_be_read(tmp_path, segments_csv): 
                    f"--out {tmp_path / 's'}: cannot read its results.jsonl")
 
 
+def test_a_sweep_range_of_infinite_ends(tmp_path, segments_csv):  # noqa: F811
+    spec = _write(tmp_path / "inf.yaml", f"input: {segments_csv}\nmethods: [proposed]\n"
+                                         "grid: {fusion.proposed.gamma: {start: -.inf, stop: .inf, num: 3}}\n")
+    result = cli("sweep", spec, "--out", tmp_path / "s")
+    one_line_error(result, "inf.yaml: grid key 'fusion.proposed.gamma': start Input should be a finite number")
+    assert "RuntimeWarning" not in result.output and not (tmp_path / "s").exists()
+
+
 def test_a_sweep_files_frames_are_blamed_on_the_file(tmp_path):
     frames = _write(tmp_path / "frames.yaml", "drive: default\nframes: x\nmethods: [proposed]\n"
                                               "grid: {fusion.proposed.gamma: [0.5]}\n")
