@@ -20,7 +20,8 @@ settings alone (the next seeds with vls128 at 0.37-0.40 deg), and no held-out wo
 
 PROBE_SEEDS: tuple[int, ...] = (39, 40, 41, 42, 43, 44, 45, 46, 47, 48, 52, 56, 72, 196, 216, 236,
                                 250, 270, 294, 279, 295, 327, 351, 363, 415, 392, 476, 484,
-                                447, 479, 487, 515, 620, 628, 692, 784, 794, 826, 834, 792, 840, 856)
+                                447, 479, 487, 515, 620, 628, 692, 784, 794, 826, 834, 792, 840, 856,
+                                *range(900, 920))
 """Worlds outside every split that were run and looked into while developing, so they are development
 worlds, not validation: 44, 56 and 72 were drawn by the settings of held-out world 7108 (the next seeds with
 an hdl64 at <= 0.21 deg and >= 2.5 cm noise), and 196, 216 and 236 the same way (the next three such seeds
@@ -33,7 +34,9 @@ by those of 7108 (the first hdl64s at <= 0.2 deg and >= 2.5 cm noise after 327),
 447, 479, 487 and 515 like 7119 and 620, 628, 692 and 784 like 7108 (the next such seeds in no list); after
 extractor version 15, 794, 826 and 834 by the settings of sixth-held-out world 7158 (the first vls128s at
 >= 0.3 deg and >= 2.5 cm noise after 784) and 792, 840 and 856 by those of 7156 (the first hdl64s at
->= 0.3 deg and >= 2.5 cm noise after 784), run with drawn foliage (2026-12-05). Not in
+>= 0.3 deg and >= 2.5 cm noise after 784), run with drawn foliage (2026-12-05); 900-919 were drawn in order
+as a fresh check with drawn foliage after extractor version 15 and the fusion of 2026-12-06, run once and
+nothing chosen on them (``docs/results.md``, *Twenty fresh development worlds*). Not in
 :data:`TUNING_SEEDS`, so the tuning tables stay comparable; run them with ``bench_generalization.py --seeds``.
 A new check of how the defaults generalise needs seeds in none of these lists."""
 
