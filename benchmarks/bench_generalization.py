@@ -52,7 +52,10 @@ Per world and overall it prints:
   longest uncovered stretches with their views (``featmap.evaluation.observation_metrics.uncovered_stretches``);
   and per method where its fused map loses that coverage (``fusion_losses``): the observed length only
   segments it dropped covered (its support filter), the length a kept segment covered and its fused
-  feature does not (the fit), and the dropped segments' own length on building walls and elsewhere.
+  feature does not (the fit), and the dropped segments' own length on building walls and elsewhere;
+  and what the per-scan segments and the fused features lie on where they lie on no building wall
+  (``featmap.evaluation.clutter``: a hedge, fence, car, pole or tree of the world, beside a wall, or
+  nothing near), the simulated counterpart of the real scans' segments on clutter.
 - with ``--variant "KEY=VALUE ..."`` (repeatable; tuning and probe worlds only): the same worlds again
   with each variant's settings on top of ``--set``, and a table comparing every variant with the
   configuration without them (observation recall, segment coverage and each method's precision and
@@ -85,13 +88,14 @@ from rich.table import Table
 from featmap.datasets import KittiRawDataset
 from featmap.errors import FeatmapError
 from featmap.evaluation import load_simulator_truth, truth_metrics
+from featmap.evaluation.clutter import CLUTTER_KINDS, ClutterObjects, OffWall, off_wall
 from featmap.evaluation.observation_metrics import (FAR_VIEW_M, FEW_VIEWS, GRAZING_VIEW_DEG, LOSS_KINDS,
                                                    UncoveredStretches, fusion_losses, match_observations,
                                                    truth_from_observations, uncovered_stretches, union_coverage)
 from featmap.fusion import fuse
 from featmap.fusion.registry import fuse_columns
 from featmap.io.segments_csv import SegmentTable
-from featmap.io.sim_truth import read_observations
+from featmap.io.sim_truth import read_objects_local, read_observations
 from featmap.pipeline import SegmentStore, load_config
 from featmap.pipeline.executor import ProcessExecutor, SerialExecutor
 from featmap.pipeline.extract import extract_source
@@ -192,13 +196,16 @@ class WorldResult:
     points: list
     methods: dict
     losses: UncoveredStretches | None = None
+    clutter: dict | None = None
 
 
 def score_world(root: Path, frames: list[int], table: SegmentTable, config, methods: list[str],
                 losses: bool = False) -> dict:
     """Observation recall, coverage and every method's fused metrics for one world's extracted segments
     (``table``: world frame, with the extraction's per-segment columns); with ``losses`` also the observed
-    wall stretches no segment covers (``"losses"``, :func:`uncovered_stretches`)."""
+    wall stretches no segment covers (``"losses"``, :func:`uncovered_stretches`) and what the per-scan
+    segments and each method's features lie on where they lie on no building wall (``"clutter"``,
+    :func:`_clutter`)."""
     segments, scan = table.segments, table.scan
     ds = KittiRawDataset(root, DRIVE)
     truth_dir = ds.location / "truth"
@@ -218,6 +225,8 @@ def score_world(root: Path, frames: list[int], table: SegmentTable, config, meth
            "segment_coverage": union_coverage(segments, truth), "methods": {}}
     if losses:
         out["losses"] = uncovered_stretches(segments, truth, obs_c, poses)
+        objects = ClutterObjects.from_records(read_objects_local(truth_dir))
+        out["clutter"] = _clutter(off_wall(segments, truth, objects))
     for name in methods:
         start = time.perf_counter()
         result = fuse(name, segments, scan, config.fusion, **fuse_columns(table.extra, len(table)))
@@ -226,8 +235,17 @@ def score_world(root: Path, frames: list[int], table: SegmentTable, config, meth
         metrics["fusion_seconds"] = seconds
         if losses:
             metrics["fusion_loss"] = asdict(fusion_losses(segments, result.labels < 0, result.segments, truth))
+            metrics["clutter"] = _clutter(off_wall(result.segments, truth, objects))
         out["methods"][name] = metrics
     return out
+
+
+def _clutter(off: OffWall) -> dict:
+    """Per kind of ``CLUTTER_KINDS``: how many of the segments lie on it (most of their length off every
+    building wall, most of that on it: :meth:`OffWall.segments_on`) and the metres off every wall on it."""
+    on = off.segments_on()
+    return {"segments_on": np.bincount(on[on >= 0], minlength=len(CLUTTER_KINDS)).tolist(),
+            "metres": off.metres_by_kind().tolist()}
 
 
 # --- report ------------------------------------------------------------------------------------------
@@ -354,9 +372,34 @@ def fusion_loss_table(results: list[WorldResult], methods: list[str]) -> Table:
     return table
 
 
+def clutter_table(results: list[WorldResult], methods: list[str]) -> Table:
+    """What the per-scan segments and each method's features lie on where they lie on no building wall
+    (``featmap.evaluation.clutter``), pooled over the worlds looked into: the simulated counterpart of the
+    real scans' segments on clutter."""
+    rows = [r for r in results if r.clutter is not None]
+    scans = sum(r.scans for r in rows)
+    table = Table(title=f"segments lying on no building wall, by what they lie on ({len(rows)} worlds, {scans} "
+                        "scans; a segment counts where most of its length does)")
+    columns = ["kind", "per-scan segments", "per 100 scans", "per-scan m"]
+    columns += [f"{name} {what}" for name in methods for what in ("features", "m")]
+    columns += ["worlds (most per-scan segments)"]
+    for col in columns:
+        table.add_column(col, justify="left" if col in ("kind", "worlds (most per-scan segments)") else "right")
+    for k, kind in enumerate(CLUTTER_KINDS):
+        count = sum(r.clutter["segments_on"][k] for r in rows)
+        worst = sorted(((r.clutter["segments_on"][k], r.seed) for r in rows), reverse=True)[:4]
+        fused = [cell for name in methods
+                 for cell in (str(sum(r.methods[name]["clutter"]["segments_on"][k] for r in rows)),
+                              f"{sum(r.methods[name]['clutter']['metres'][k] for r in rows):.1f}")]
+        table.add_row(kind, str(count), _num(100 * count / scans if scans else None, ".1f"),
+                      f"{sum(r.clutter['metres'][k] for r in rows):.0f}", *fused,
+                      ", ".join(f"{seed} ({n})" for n, seed in worst if n > 0))
+    return table
+
+
 def print_losses(results: list[WorldResult], longest: int, methods: list[str], console: Console) -> None:
-    """Print :func:`loss_tables` and :func:`fusion_loss_table`."""
-    for table in (*loss_tables(results, longest), fusion_loss_table(results, methods)):
+    """Print :func:`loss_tables`, :func:`fusion_loss_table` and :func:`clutter_table`."""
+    for table in (*loss_tables(results, longest), fusion_loss_table(results, methods), clutter_table(results, methods)):
         console.print(table)
 
 
@@ -562,7 +605,8 @@ def score_split(args, seeds: list[int], config, methods: list[str], store: Segme
         label = f"{g.sensor.name} {g.sensor.azimuth_step_deg:.2f}° {100 * g.noise_m:.1f}cm {100 * g.dropout:.0f}%"
         results.append(WorldResult(seed, label, len(frames_of[seed]), scored["n_obs"], scored["found"], scored["few"],
                                    scored["far"], scored["covered_m"], scored["observed_m"], scored["segment_coverage"],
-                                   len(table), acc["ms"], acc["points"], scored["methods"], scored.get("losses")))
+                                   len(table), acc["ms"], acc["points"], scored["methods"], scored.get("losses"),
+                                   scored.get("clutter")))
     return results, wall_seconds, extracted_now, sum(len(f) for f in frames_of.values())
 
 
@@ -679,7 +723,8 @@ def _run(args, console: Console) -> int:
             replace_block(results_md, "generalization_losses",
                           f"{command} --docs` ({args.split} worlds, seeds {', '.join(map(str, seeds))}):\n\n"
                           + "\n\n".join(rich_table_markdown(t) for t in (*loss_tables(results, args.losses),
-                                                                          fusion_loss_table(results, methods))))
+                                                                          fusion_loss_table(results, methods),
+                                                                          clutter_table(results, methods))))
             console.print("wrote where the segment coverage is lost into docs/results.md")
     if args.json:
         from featmap.io.atomic import atomic_write_text

@@ -79,6 +79,29 @@ def test_loss_report_adds_the_kinds_up(bench):
     assert longest == [("1", "4.0", "grazing"), ("2", "2.5", "far"), ("1", "1.0", "few views")]
 
 
+def test_clutter_report_pools_the_worlds(bench):
+    kinds = bench.CLUTTER_KINDS               # hedge, fence, car, pole, tree, beside a wall, nothing near
+    clutter = lambda on, metres: {"segments_on": on, "metres": metres}  # noqa: E731
+    worlds = {1: (200, clutter([3, 0, 1, 0, 2, 0, 0], [9.0, 0, 2.0, 0, 4.0, 1.0, 0]),
+                  clutter([1, 0, 0, 0, 0, 0, 0], [2.5, 0, 0, 0, 0, 0.5, 0])),
+              2: (100, clutter([0, 0, 5, 0, 1, 0, 1], [0, 0, 12.0, 0, 1.5, 0, 3.0]),
+                  clutter([0, 0, 1, 0, 0, 0, 0], [0, 0, 3.0, 0, 0, 0, 0]))}
+    results = [bench.WorldResult(seed, "sensor", scans, 1, 1, (0, 0), (0, 0), 1.0, 1.0, 0.99, 1, [], [],
+                                 {"proposed": {"clutter": fused}}, None, per_scan)
+               for seed, (scans, per_scan, fused) in worlds.items()]
+    console = Console(record=True, width=250)
+    console.print(bench.clutter_table(results, ["proposed"]))
+    rows = {line.split("│")[1].strip(): [c.strip() for c in line.split("│")[2:-1]]
+            for line in console.export_text().splitlines() if line.startswith("│")}
+    assert set(rows) == set(kinds)
+    # per-scan segments, per 100 of the 300 scans, per-scan metres, proposed features and metres, worlds
+    assert rows["hedge"] == ["3", "1.0", "9", "1", "2.5", "1 (3)"]
+    assert rows["car"] == ["6", "2.0", "14", "1", "3.0", "2 (5), 1 (1)"]
+    assert rows["tree"] == ["3", "1.0", "6", "0", "0.0", "1 (2), 2 (1)"]
+    assert rows["beside a wall"] == ["0", "0.0", "1", "0", "0.5", ""]
+    assert rows["nothing near"] == ["1", "0.3", "3", "0", "0.0", "2 (1)"]
+
+
 def test_variants_are_refused_on_held_out_worlds_with_docs_and_bad_keys(bench, tmp_path, capsys):
     # each refused in one line before anything is simulated or extracted
     for argv, words in ((["--split", "heldout", "--variant", "extraction.vertical_structure.tall_m=2"], ("--variant", "held-out")),

@@ -2,6 +2,7 @@
 
 - :mod:`truth_metrics`: the metrics of ``shared/EVALUATION.md`` against ground-truth walls;
 - :mod:`references`: ground truth from a simulated drive's ``truth/`` folder or building footprints;
+- :mod:`clutter`: what segments lie on where they lie on no building wall (the simulator's objects, by kind);
 - :mod:`plugins`: the evaluators a run calls when it has their reference.
 """
 

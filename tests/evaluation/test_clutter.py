@@ -1,0 +1,67 @@
+"""What segments off every building wall lie on: known layouts of a wall, a hedge, a fence, a car, a pole and a tree."""
+
+import numpy as np
+import pytest
+
+from featmap.evaluation.clutter import CLUTTER_KINDS, ClutterObjects, off_wall
+from featmap.evaluation.truth_metrics import GroundTruth
+
+WALL = np.array([[0.0, 0.0, 20.0, 0.0]])                 # a building wall along y = 0
+TRUTH = GroundTruth(walls=WALL, building=np.array(["A"]), labels=np.array([["a", "b"]]), observed=[[(0.0, 20.0)]],
+                    n_returns=np.array([500]))
+RECORDS = [
+    {"kind": "building", "geometry": {"type": "Polygon", "coordinates": [[[0, 0], [20, 0], [20, 10], [0, 10]]]}},
+    {"kind": "hedge", "geometry": {"type": "LineString", "coordinates": [[0, -10], [8, -10]]}, "height": 1.2},
+    {"kind": "fence", "geometry": {"type": "LineString", "coordinates": [[30, -10], [40, -10]]}, "height": 1.0},
+    {"kind": "car", "geometry": {"type": "Polygon", "coordinates": [[[50, -1], [54.5, -1], [54.5, 0.8], [50, 0.8]]]},
+     "height": 1.5},
+    {"kind": "pole", "geometry": {"type": "Point", "coordinates": [60, -5]}, "radius": 0.1},
+    {"kind": "tree", "geometry": {"type": "Point", "coordinates": [70, -5]}, "radius": 0.2},
+]
+OBJECTS = ClutterObjects.from_records(RECORDS)
+
+
+def kind(name: str) -> int:
+    return CLUTTER_KINDS.index(name)
+
+
+@pytest.mark.parametrize("segment,expected", [
+    ([1.0, -10.1, 7.0, -9.9], "hedge"),            # along the hedge, 10 cm off its line
+    ([32.0, -10.3, 38.0, -10.3], "fence"),         # 30 cm in front of the fence
+    ([50.2, -1.05, 54.3, -1.05], "car"),           # the car's long side
+    ([59.8, -5.5, 59.8, -4.5], "pole"),
+    ([68.0, -7.0, 68.0, -3.0], "tree"),            # 2 m from the trunk: in its crown
+    ([5.0, 0.6, 15.0, 0.6], "beside a wall"),      # parallel to the wall, 60 cm off it (beyond the 30 cm tolerance)
+    ([5.0, -0.2, 5.0, -6.0], "nothing near"),      # square to the wall, 0.2-6 m from it: off by angle, mostly far
+    ([100.0, 50.0, 104.0, 50.0], "nothing near"),
+])
+def test_a_segment_off_the_walls_is_put_down_to_what_it_lies_on(segment, expected):
+    result = off_wall(np.array([segment]), TRUTH, OBJECTS)
+    length = np.hypot(segment[2] - segment[0], segment[3] - segment[1])
+    by_kind = result.metres_by_kind()
+    assert by_kind.sum() == pytest.approx(length, rel=0.05)          # none of it lies on the wall
+    assert by_kind[kind(expected)] >= 0.75 * length
+    assert result.segments_on().tolist() == [kind(expected)]
+
+
+def test_a_segment_on_the_wall_counts_nowhere_and_a_mixed_one_by_its_larger_part():
+    segments = np.array([[2.0, 0.05, 18.0, 0.05],          # on the wall (5 cm off, within tolerance)
+                         [1.0, -10.0, 7.0, -10.0],          # on the hedge
+                         [10.0, 0.0, 26.0, 0.0]])            # 10 m on the wall, 6 m past its end (beside it)
+    result = off_wall(segments, TRUTH, OBJECTS)
+    on = result.segments_on()
+    assert on[0] == -1 and on[1] == kind("hedge")
+    assert on[2] == -1                                      # only ~5 of its 16 m lie off the wall
+    assert result.metres_by_kind()[kind("beside a wall")] == pytest.approx(0.7, abs=0.2)   # 0.7 m past end + tolerance
+    assert result.segments_on(min_share=0.25)[2] == kind("nothing near")  # 5.7 m off: "beside a wall" 1 m past the end
+    assert result.segments_on(min_length_m=7.0)[1] == -1    # the hedge segment is 6 m long
+
+
+def test_a_hedge_under_a_crown_counts_as_hedge_and_no_objects_means_nothing_near():
+    records = RECORDS + [{"kind": "tree", "geometry": {"type": "Point", "coordinates": [4, -10.5]}, "radius": 0.2}]
+    result = off_wall(np.array([[1.0, -10.0, 7.0, -10.0]]), TRUTH, ClutterObjects.from_records(records))
+    assert result.segments_on().tolist() == [kind("hedge")]
+    bare = off_wall(np.array([[1.0, -10.0, 7.0, -10.0]]), TRUTH, ClutterObjects.from_records([]))
+    assert bare.segments_on().tolist() == [kind("nothing near")]
+    empty = off_wall(np.zeros((0, 4)), TRUTH, OBJECTS)
+    assert empty.segments_on().shape == (0,) and empty.metres_by_kind().sum() == 0
