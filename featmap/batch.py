@@ -52,6 +52,7 @@ import threading
 import time
 import traceback
 import uuid
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable, Optional, Union
@@ -427,6 +428,38 @@ class EventReporter(RecordingReporter):
         self._send(kind="warning", text=text)
 
 
+_TASK = threading.local()
+"""The reporter of the drive task running on this worker thread (``_TASK.reporter``), if any."""
+_SHOWN_BEFORE = [warnings.showwarning]
+"""The ``warnings.showwarning`` that :func:`_route_warning` replaced: it shows what no task raised."""
+
+
+def _route_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """``warnings.showwarning`` on a worker: a warning raised while a drive task runs goes to that task's
+    reporter (to the client, one line, prefixed with the drive), featmap's as its message and others with
+    their category; outside a task, to the hook it replaced."""
+    reporter = getattr(_TASK, "reporter", None)
+    if reporter is None:
+        _SHOWN_BEFORE[0](message, category, filename, lineno, file, line)
+    else:
+        reporter.warning(str(message) if category.__module__.startswith("featmap") else f"{category.__name__}: {message}")
+
+
+@contextlib.contextmanager
+def _warnings_to(reporter: "EventReporter"):
+    """While the block runs on this thread, its warnings go to ``reporter`` instead of the worker's stderr
+    (where a Dask worker prints them in Python's two-line format). Thread-safe: the hook, installed once,
+    looks the reporter up per thread, and it stays (what no task raised goes where it went before)."""
+    if warnings.showwarning is not _route_warning:
+        _SHOWN_BEFORE[0] = warnings.showwarning
+        warnings.showwarning = _route_warning
+    _TASK.reporter = reporter
+    try:
+        yield
+    finally:
+        _TASK.reporter = None
+
+
 @dataclass(frozen=True)
 class SimOutcome:
     world: str
@@ -551,31 +584,32 @@ def run_drive_task(task: DriveTask, sim: SimOutcome | None = None) -> DriveOutco
 
     if sim is not None and sim.error is not None:
         return failed(f"simulating {sim.world}: {sim.error}")
-    try:
-        config = config_from_dict(task.config, f"{task.name} config")
-        source = open_source(task.spec, reporter)
-        location = str(source.location)
-        key = drive_key(task, location)
-        out = Path(task.out)
-        if _is_up_to_date(out, key):
-            record = _record_from_run(task, "skipped", location, 0.0, worker)
-            reporter._send(kind="advance", n=record.scans)
-            return DriveOutcome(record, reporter.warnings)
-        pipeline_args = (config, list(task.methods), SegmentStore(task.cache_dir))
-        if task.scan_tasks:
-            from distributed import worker_client
+    with _warnings_to(reporter):       # (a worker would print them in Python's own format)
+        try:
+            config = config_from_dict(task.config, f"{task.name} config")
+            source = open_source(task.spec, reporter)
+            location = str(source.location)
+            key = drive_key(task, location)
+            out = Path(task.out)
+            if _is_up_to_date(out, key):
+                record = _record_from_run(task, "skipped", location, 0.0, worker)
+                reporter._send(kind="advance", n=record.scans)
+                return DriveOutcome(record, reporter.warnings)
+            pipeline_args = (config, list(task.methods), SegmentStore(task.cache_dir))
+            if task.scan_tasks:
+                from distributed import worker_client
 
-            with worker_client() as client:
-                MappingPipeline(*pipeline_args, DaskExecutor(client), reporter, task.spec.skip_bad_scans).run(source, out)
-        else:
-            MappingPipeline(*pipeline_args, SerialExecutor(), reporter, task.spec.skip_bad_scans).run(source, out)
-        write_drive_key(out / KEY_FILE, key)
-        record = _record_from_run(task, "done", location, time.perf_counter() - start, worker,
-                                  time.process_time() - cpu_start)
-        return DriveOutcome(record, reporter.warnings)
-    except Exception as exc:
-        detail = None if isinstance(exc, (FeatmapError, OSError)) else traceback.format_exc()
-        return failed(_one_line(exc), detail)
+                with worker_client() as client:
+                    MappingPipeline(*pipeline_args, DaskExecutor(client), reporter, task.spec.skip_bad_scans).run(source, out)
+            else:
+                MappingPipeline(*pipeline_args, SerialExecutor(), reporter, task.spec.skip_bad_scans).run(source, out)
+            write_drive_key(out / KEY_FILE, key)
+            record = _record_from_run(task, "done", location, time.perf_counter() - start, worker,
+                                      time.process_time() - cpu_start)
+            return DriveOutcome(record, reporter.warnings)
+        except Exception as exc:
+            detail = None if isinstance(exc, (FeatmapError, OSError)) else traceback.format_exc()
+            return failed(_one_line(exc), detail)
 
 
 def _worker_address() -> str | None:

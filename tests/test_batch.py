@@ -705,3 +705,36 @@ def test_footprints_score_the_merged_map_on_what_the_drives_saw(first_batch, tmp
     assert batch.merged_footprints(scored_inputs, footprints) is None                       # drive 2: no cache
     unmoved = batch.merged_footprints(scored_inputs, footprints, tmp / "cache")
     assert truth_metrics(fused, unmoved)["recall"] == pytest.approx(observed["recall"], abs=0.005)
+
+
+def test_a_drive_tasks_warnings_go_to_its_own_reporter_one_line_each():
+    # on a Dask worker they were printed to its stderr in Python's two-line format (file, line, source)
+    import threading
+    import warnings
+
+    from featmap.batch import EventReporter, _warnings_to
+    from featmap.plotting.basemap import BasemapWarning
+
+    shown = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        warnings.showwarning = lambda message, *rest: shown.append(str(message))
+        reporters = {name: EventReporter(None, name) for name in ("a", "b")}
+        both_inside = threading.Barrier(2)
+
+        def task(name):
+            with _warnings_to(reporters[name]):
+                both_inside.wait()                   # the two tasks' blocks overlap in time
+                warnings.warn(f"tiles unreachable for {name}", BasemapWarning)
+                warnings.warn(f"overflow in {name}", RuntimeWarning)
+                both_inside.wait()
+
+        threads = [threading.Thread(target=task, args=(name,)) for name in reporters]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        warnings.warn("outside any task", UserWarning)
+    for name, reporter in reporters.items():
+        assert reporter.warnings == [f"tiles unreachable for {name}", f"RuntimeWarning: overflow in {name}"]
+    assert shown == ["outside any task"]            # what no task raised goes to the hook that was there
