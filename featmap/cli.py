@@ -263,6 +263,8 @@ def explain(
     from featmap.pipeline import load_config
 
     point = None if at is None else _point(at, "--at")
+    if plot is not None and plot.suffix.lower() != ".png":
+        _fail(f"--plot {plot}: the drawing is a PNG; give a file name ending in .png")
     cfg = load_config(config, set_ or [])
     if cfg.extraction.method_3d != "vertical_structure":
         _fail(f"extraction.method_3d={cfg.extraction.method_3d}: explain names the tests of vertical_structure only")

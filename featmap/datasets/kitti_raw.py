@@ -89,8 +89,9 @@ class KittiRawDataset(FrameSource):
         self.notes = SourceNotes(skipped=skipped, flags={"poor_gps": poor_gps} if poor_gps else {})
         self.location = self.drive_dir.resolve()
         try:
-            self._raw = pykitti.raw(str(self.data_dir), self.date, self.drive_id,
-                                    frames=good if bad else None)
+            with np.errstate(all="ignore"):         # a singular calibration: the check below says so in one line
+                self._raw = pykitti.raw(str(self.data_dir), self.date, self.drive_id,
+                                        frames=good if bad else None)
         except Exception as exc:  # pykitti's own failures, after our checks: name the drive
             raise DatasetError(f"{self.drive_dir}: pykitti could not load the drive ({type(exc).__name__}: {exc})") from None
         if not selected:

@@ -95,7 +95,8 @@ def test_bad_input_is_one_line_and_status_2(case1_drive, tmp_path):
              (["explain", *drive, "--frame", "40"], "--frame 40: "),
              (["explain", "--dataset", "carmen", "--source", str(log)], "2D source"),
              (["explain", "x.bin", "--set", "extraction.method_3d=ransac_planes"], "vertical_structure only"),
-             (["explain", "x.bin", "--radius", "-1"], "--radius")]
+             (["explain", "x.bin", "--radius", "-1"], "--radius"),
+             (["explain", "x.bin", "--plot", "why.jpg"], "--plot why.jpg: the drawing is a PNG")]
     for args, says in cases:
         res = CliRunner().invoke(app, args)
         assert res.exit_code == 2, (args, res.output)

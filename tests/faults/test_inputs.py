@@ -3,6 +3,7 @@
 import json
 import math
 import shutil
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -368,3 +369,16 @@ def test_a_metrics_files_geo_frame_is_checked_where_it_is_read(lat, lon):
 
     with pytest.raises(ValidationError, match="lat0_deg|lon0_deg"):
         GeoRecord(lat0_deg=lat, lon0_deg=lon)
+
+
+def test_a_drive_whose_camera_calibration_is_all_zero_maps_without_warnings(drive_copy, tmp_path):
+    # featmap uses no camera; pykitti divides by the rectified projections and numpy printed four warnings
+    root, drive = drive_copy
+    calib = root / drive[:10] / "calib_cam_to_cam.txt"
+    calib.write_text("".join(f"{line.split(':')[0]}: {' '.join(['0'] * len(line.split(':')[1].split()))}\n"
+                             if line.startswith(("P_rect_", "R_rect_")) else line + "\n"
+                             for line in calib.read_text().splitlines()))
+    res = cli(*run_args(SimpleNamespace(drive=drive, root=root), tmp_path / "r", tmp_path / "c",
+                        "--frames", "0:3", "--method", "proposed"))
+    assert res.exit_code == 0, res.output
+    assert "RuntimeWarning" not in res.output
