@@ -130,6 +130,9 @@ def fuse_and_write(table: SegmentTable, methods: list[str], config, out: str | P
     if table.skipped_duplicates:
         reporter.warning(f"skipped {table.skipped_duplicates} duplicate row(s) of the input (same scan and endpoints "
                          "as an earlier row; they would count twice in a feature's support)")
+    if len(table) == 0:
+        reporter.warning(f"{source if source is not None else 'the input'}: no segment to fuse (a header and no "
+                         "rows, or only zero-length ones); the maps written are empty")
     reporter.info(f"loading the methods' libraries and compiled code took {import_seconds:.2f} s (not in the seconds above)")
     reporter.info(f"wrote {', '.join(f'fused_{r.name}.csv' for r in runs)}, config.yaml and {FUSE_RECORD} to {out}")
     return runs

@@ -104,6 +104,14 @@ def test_bad_config_files(tmp_path, segments_csv):
                    "none.yaml: config file not found")
 
 
+def test_a_csv_with_a_header_and_no_rows_fuses_to_empty_maps_with_a_warning(tmp_path):
+    path = tmp_path / "header.csv"
+    path.write_text("scan,x1,y1,x2,y2\n")
+    res = cli("fuse", path, "--out", tmp_path / "o", "--method", "proposed")
+    assert res.exit_code == 0 and f"{path}: no segment to fuse" in " ".join(res.output.split())
+    assert (tmp_path / "o" / "fused_proposed.csv").read_text().count("\n") == 1      # the header only
+
+
 def test_a_method_that_keeps_nothing_warns(tmp_path, segments_csv):
     res = cli("fuse", segments_csv, "--out", tmp_path / "o", "--method", "proposed", "--set",
               "fusion.proposed.min_support=1000", "--set", "fusion.proposed.min_support_length_m=null")
