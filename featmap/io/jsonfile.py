@@ -54,4 +54,6 @@ def validate_record(path: str | Path, data: Any, model: type[Model], what: str) 
     except ValidationError as exc:
         err = exc.errors()[0]
         where = ".".join(str(p) for p in err["loc"])
+        if not where:                           # a check of the whole record: its own message
+            raise InputFileError(Path(path), f"not a featmap {what}: {err['msg'].removeprefix('Value error, ')}") from None
         raise InputFileError(Path(path), f"not a featmap {what}: '{where}' {err['msg'].lower()}") from None

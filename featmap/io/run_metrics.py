@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 from typing import Optional, Union
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from featmap.errors import InputFileError, shown
 from featmap.geo import GeoFrame
@@ -52,17 +52,17 @@ class GeoRecord(_Model):
 
 
 class ScanCounts(_Model):
-    total: int
-    processed: int
-    extracted_now: int
-    from_cache: int
+    total: int = Field(ge=0)
+    processed: int = Field(ge=0)
+    extracted_now: int = Field(ge=0)
+    from_cache: int = Field(ge=0)
 
 
 class MethodRecord(_Model):
     """One fusion method's result: its count, time and scores per evaluator (e.g. ``truth``)."""
 
-    count: int
-    clusters_dropped: int = 0
+    count: int = Field(ge=0)
+    clusters_dropped: int = Field(0, ge=0)
     seconds: float
     scores: dict[str, dict[str, Score]] = Field(default_factory=dict)
 
@@ -103,11 +103,18 @@ class RunMetrics(_Model):
     references: dict[str, str] = Field(default_factory=dict, description="evaluator -> reference used (absolute path)")
     primary: Optional[str] = Field(None, description="the evaluator whose scores summarise the run")
     scans: ScanCounts
-    segments: int
+    segments: int = Field(ge=0)
     timings_s: dict[str, Optional[float]]
-    methods: dict[str, MethodRecord]
+    methods: dict[str, MethodRecord] = Field(min_length=1)
     refinement: Optional[RefinementRecord] = Field(None, description="pose refinement before fusion (None: runs before it existed)")
     online: Optional[OnlineRecord] = Field(None, description="the scans were mapped online, one at a time (None: all at once)")
+
+    @model_validator(mode="after")
+    def _primary_is_a_reference(self) -> "RunMetrics":
+        if self.primary is not None and self.primary not in self.references:
+            raise ValueError(f"'primary' names {shown(self.primary)}, not one of the references "
+                             f"({', '.join(self.references) or 'none'})")
+        return self
 
     def primary_scores(self, method: str) -> dict[str, Score]:
         """The primary evaluator's scores of ``method`` ({} when the run had no reference)."""

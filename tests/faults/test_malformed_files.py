@@ -1,6 +1,8 @@
 """Malformed files beyond the common cases: damaged truth files, oversized cells, deep nesting, numbers out of
 range, and errors that must name where the bad value came from. Each is one line naming the file or flag."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -109,6 +111,21 @@ def test_a_metrics_files_schema_version_of_another_type(tmp_path):
     one_line_error(cli("compare", tmp_path), "'schema_version' must be a whole number, got '2'")
     _write(tmp_path / "metrics.json", '{"schema_version": 1}')
     one_line_error(cli("compare", tmp_path), "written by another featmap version (schema 1, expected 2)")
+
+
+@pytest.mark.parametrize("edit,needle", [
+    (lambda m: m.update(primary="nope"), "'primary' names 'nope', not one of the references (truth, map)"),
+    (lambda m: m.update(segments=-3), "'segments' input should be greater than or equal to 0"),
+    (lambda m: m.update(methods={}), "'methods' dictionary should have at least 1 item"),
+    (lambda m: m["scans"].update(processed=-1), "'scans.processed' input should be greater than or equal to 0"),
+])
+def test_a_metrics_file_that_contradicts_itself(case1_drive, tmp_path, edit, needle):
+    run = _fused_run(case1_drive, tmp_path)
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert cli("compare", run).exit_code == 0                          # as written, it reads
+    edit(metrics)
+    (run / "metrics.json").write_text(json.dumps(metrics))
+    one_line_error(cli("compare", run), "metrics.json: not a featmap metrics file: " + needle)
 
 
 def test_yaml_nested_too_deeply_or_expanded_by_aliases(tmp_path, segments_csv):  # noqa: F811
