@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Protocol, runtime_checkable
+from typing import Any, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
@@ -49,6 +49,20 @@ class SourceNotes:
 
     skipped: dict[int, str] = field(default_factory=dict)
     flags: dict[str, list[int]] = field(default_factory=dict)
+
+
+TIME_GOES_BACK = "time_goes_back"
+"""The flag of the frames whose timestamp is not after the one before (:func:`frames_back_in_time`)."""
+
+
+def frames_back_in_time(timestamps: np.ndarray, frames: Sequence[int]) -> list[int]:
+    """The ``frames`` (indices into ``timestamps`` (F,), seconds) whose timestamp is not after the previous
+    selected frame's: a log or drive whose clock stepped back or stood still."""
+    frames = list(frames)
+    if len(frames) < 2:
+        return []
+    stamps = np.asarray(timestamps, dtype=float)[frames]
+    return [frames[k + 1] for k in np.flatnonzero(np.diff(stamps) <= 0)]
 
 
 @runtime_checkable

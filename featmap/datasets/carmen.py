@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from featmap.datasets.base import FrameSource, Scan, SourceNotes, select_frames
+from featmap.datasets.base import TIME_GOES_BACK, FrameSource, Scan, SourceNotes, frames_back_in_time, select_frames
 from featmap.errors import ConfigError
 from featmap.io.carmen import read_carmen
 
@@ -56,7 +56,8 @@ class CarmenSource(FrameSource):
         self.name = log_name(path)
         self.location = Path(path).resolve()
         self.frames = select_frames(len(self.log), frames, self.name)
-        self.notes = SourceNotes()
+        back = frames_back_in_time(self.log.timestamp, self.frames)
+        self.notes = SourceNotes(flags={TIME_GOES_BACK: back} if back else {})
         self.slam_poses = self.log.slam_poses
         self._t0 = float(self.log.timestamp[0]) if len(self.log) else 0.0
 

@@ -12,12 +12,12 @@ frame selection does not move the map). It implements :class:`featmap.datasets.b
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from featmap.datasets.base import FrameSource, Scan, SourceNotes, select_frames
+from featmap.datasets.base import TIME_GOES_BACK, FrameSource, Scan, SourceNotes, frames_back_in_time, select_frames
 from featmap.errors import ConfigError, DatasetError
 from featmap.geo import GeoFrame
 from featmap.io.kitti_raw import (CALIB_FILES, drive_paths, read_calib_file, read_oxts_packet, read_rigid_calib,
@@ -103,6 +103,10 @@ class KittiRawDataset(FrameSource):
         velo_stamps = self.drive_dir / "velodyne_points" / "timestamps.txt"
         # without the scans' own timestamps, the OXTS packets' (one per frame, synchronised with the scans)
         self._stamps = read_timestamps(velo_stamps if velo_stamps.exists() else self.drive_dir / "oxts" / "timestamps.txt")
+        if len(self._stamps) >= max(self.frames, default=-1) + 1:
+            back = frames_back_in_time(self._stamps, self.frames)
+            if back:
+                self.notes = replace(self.notes, flags={**self.notes.flags, TIME_GOES_BACK: back})
         first = self._raw.oxts[0].packet
         try:
             self.geo_origin = GeoFrame(float(first.lat), float(first.lon), float(first.alt))

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from featmap import __version__
-from featmap.datasets.base import ScanSource
+from featmap.datasets.base import TIME_GOES_BACK, ScanSource
 from featmap.evaluation import EVALUATORS, EvaluationContext, Evaluator, Reference
 from featmap.evaluation.references import observation_record
 from featmap.io.atomic import atomic_write_text
@@ -261,6 +261,11 @@ def report_run(result: RunResult, reporter: Reporter) -> None:
     report_refinement(m.refinement, reporter)
     if m.source.skipped:
         reporter.warning(f"skipped {len(m.source.skipped)} bad scan(s): " + "; ".join(list(m.source.skipped.values())[:3]))
+    if m.source.flags.get(TIME_GOES_BACK):
+        back = m.source.flags[TIME_GOES_BACK]
+        reporter.warning(f"{len(back)} frame(s) whose timestamp is not after the one before (first: frame {back[0]}); "
+                         "the source's clock stepped back or stood still there (pose refinement takes each such step "
+                         "as a tenth of the median one)")
     if m.source.flags.get("poor_gps"):
         reporter.warning(f"{len(m.source.flags['poor_gps'])} frame(s) with poor GPS (navstat/numsats/pos_accuracy); "
                          "their segments may be misplaced")

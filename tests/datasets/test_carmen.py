@@ -77,3 +77,29 @@ def test_a_log_says_whether_its_scan_poses_are_a_slam_result(tmp_path):
                                         (("carmen_2d_raw", "aces.clf.bz2"), False)])
 def test_the_shipped_logs_say_what_their_poses_are(path, slam):
     assert CarmenSource(shared_data(*path)).slam_poses is slam
+
+
+def test_frames_whose_clock_stepped_back_are_flagged_and_reported(tmp_path):
+    from typer.testing import CliRunner
+
+    from featmap.cli import app
+    from featmap.datasets.base import TIME_GOES_BACK, frames_back_in_time
+    from featmap.io.carmen import flaser_log_text
+    from tests.conftest import write_room_log
+
+    assert frames_back_in_time(np.array([0.0, 0.2, 0.1, 0.3, 0.3, 0.5]), range(6)) == [2, 4]
+    assert frames_back_in_time(np.array([0.0, 0.2, 0.1, 0.3]), [0, 1, 3]) == []     # frame 2 not selected
+    assert frames_back_in_time(np.array([1.0]), [0]) == []
+    good = write_room_log(tmp_path / "good.log", np.random.default_rng(0), n_scans=12)
+    assert CarmenSource(good).notes.flags == {}
+    log = CarmenSource(good).log
+    stamps = np.asarray(log.timestamp, float).copy()
+    stamps[5] = stamps[3]                                  # the clock stepped back at scan 5
+    path = tmp_path / "back.log"
+    path.write_text(flaser_log_text(np.asarray([log.ranges[k] for k in range(len(log))]), np.asarray(log.pose),
+                                    stamps))
+    assert CarmenSource(path).notes.flags == {TIME_GOES_BACK: [5]}
+    res = CliRunner().invoke(app, ["run", "--carmen", str(path), "--out", str(tmp_path / "r"), "--cache-dir",
+                                   str(tmp_path / "c"), "--workers", "1", "--set", "output.plots=false"])
+    assert res.exit_code == 0, res.output
+    assert "1 frame(s) whose timestamp is not after the one before (first: frame 5)" in " ".join(res.output.split())

@@ -161,3 +161,16 @@ def test_a_bad_scan_outside_the_selected_frames_does_not_matter(drive_copy):
         KittiRawDataset(root, drive, "25:35")
     ds = KittiRawDataset(root, drive, "25:35", skip_bad_scans=True)
     assert list(ds.notes.skipped) == [30] and 30 not in ds.frames and len(ds) == 9
+
+
+def test_scans_whose_clock_stepped_back_are_flagged(drive_copy):
+    from featmap.datasets.base import TIME_GOES_BACK
+
+    root, drive = drive_copy
+    assert KittiRawDataset(root, drive).notes.flags == {}
+    stamps = root / drive[:10] / f"{drive}_sync" / "velodyne_points" / "timestamps.txt"
+    lines = stamps.read_text().splitlines()
+    lines[7] = lines[5]                                        # frame 7 stamped as frame 5
+    stamps.write_text("\n".join(lines) + "\n")
+    assert KittiRawDataset(root, drive).notes.flags == {TIME_GOES_BACK: [7]}
+    assert KittiRawDataset(root, drive, "8:20").notes.flags == {}          # not among the frames selected
