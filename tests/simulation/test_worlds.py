@@ -182,3 +182,12 @@ def test_with_drawn_foliage_draws_each_crown_and_hedge_in_its_range_and_repeats_
     assert all(low <= getattr(hedge, key) <= high for key, (low, high) in DRAWN_FOLIAGE["hedge"].items())
     assert drawn.objects[0] == world.objects[0] and drawn.objects[-1] == world.objects[-1]   # building, fence
     assert world.objects[1].crown_porosity == 0.0            # the original is left as it was
+
+
+def test_the_world_files_in_configs_load():
+    from pathlib import Path
+
+    folder = Path(__file__).resolve().parents[2] / "configs" / "worlds"
+    for path in sorted(folder.glob("*.yaml")):
+        world = load_world(str(path))
+        assert world.name == path.stem and world.buildings and len(world.route.waypoints) >= 2
