@@ -201,6 +201,8 @@ class BatchPlan:
     scheduler: Optional[str]
     workers: Optional[int]
     cache_dir: str = "data/cache"
+    scheduler_given_by: str = "--scheduler"
+    """Where ``scheduler`` came from, for errors: the flag, or the batch file's key."""
 
 
 def _strip_name(name: str) -> str:
@@ -384,7 +386,8 @@ def plan_batch(path: str | Path, out: str | Path | None = None, config: str | Pa
     if spec.scan_tasks:
         drives = [replace(d, scan_tasks=True) for d in drives]
     return BatchPlan(path.absolute(), out, drives, methods, merge_config.model_dump(mode="json"), spec.merge,
-                     scheduler or spec.scheduler, spec.workers, cache_dir)
+                     scheduler or spec.scheduler, spec.workers, cache_dir,
+                     "--scheduler" if scheduler else f"{path}: scheduler:")
 
 
 # --- the tasks (they run on the workers) --------------------------------------------------------------------
@@ -1364,8 +1367,9 @@ def report_batch(result: BatchResult, reporter: Reporter) -> None:
                   + f" to {Path(s.drives[0].run_dir).parent if s.drives else ''}")
 
 
-def connect(scheduler: str | None, workers: int | None = None, timeout_s: float = 20.0):
-    """(client, cluster): a client of the scheduler at ``scheduler`` (cluster None), or of a new LocalCluster."""
+def connect(scheduler: str | None, workers: int | None = None, timeout_s: float = 20.0, given_by: str = "--scheduler"):
+    """(client, cluster): a client of the scheduler at ``scheduler`` (cluster None), or of a new LocalCluster;
+    errors name ``given_by`` (the flag or file key the address came from)."""
     from distributed import Client
 
     with _closed_on_interrupt():                    # Ctrl-C while it starts: nothing is left half-started
@@ -1373,8 +1377,8 @@ def connect(scheduler: str | None, workers: int | None = None, timeout_s: float 
             try:
                 return Client(scheduler, timeout=f"{timeout_s}s"), None
             except (OSError, TimeoutError) as exc:
-                raise ConfigError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+                raise ConfigError(f"{given_by} {scheduler}: cannot connect ({exc})") from None
             except (ValueError, TypeError) as exc:     # distributed's address parser: no port, unknown scheme
-                raise ConfigError(f"--scheduler {scheduler}: not a scheduler address such as tcp://HOST:8786 ({exc})") from None
+                raise ConfigError(f"{given_by} {scheduler}: not a scheduler address such as tcp://HOST:8786 ({exc})") from None
         cluster = local_cluster(workers)
         return Client(cluster), cluster

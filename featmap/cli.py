@@ -392,7 +392,7 @@ def batch(
 
     plan = plan_batch(batch_file, out, config, set_ or [], scheduler)
     reporter = _reporter()
-    client, cluster = connect(plan.scheduler, workers or plan.workers)
+    client, cluster = connect(plan.scheduler, workers or plan.workers, given_by=plan.scheduler_given_by)
     try:
         reporter.info(f"Dask scheduler {client.scheduler.address}: {sum(client.nthreads().values())} worker threads")
         result = run_batch(plan, client, reporter)

@@ -84,6 +84,14 @@ def test_a_malformed_scheduler_address_is_one_line(address):
         connect(address, timeout_s=1)
 
 
+def test_a_batch_files_scheduler_is_blamed_on_the_file(tmp_path, batch):
+    path = batch("scheduler: 'foo://x'\ndrives:\n  - world: WORLDS/tiny.yaml\n")
+    one_line_error(cli("batch", path, "--out", tmp_path / "out"), f"{path}: scheduler: foo://x: not a scheduler address")
+    one_line_error(cli("batch", path, "--out", tmp_path / "out", "--scheduler", "bar://y"),
+                   "--scheduler bar://y: not a scheduler address")                   # the flag replaces the file's
+    assert not (tmp_path / "out").exists()
+
+
 def test_an_out_that_is_a_file(tmp_path, batch, segments_file):
     (tmp_path / "afile").write_text("keep")
     one_line_error(cli("batch", batch("drives:\n  - world: WORLDS/tiny.yaml\n"), "--out", tmp_path / "afile"),
