@@ -78,8 +78,9 @@ def load_simulator_truth(truth_dir: str | Path, frame: GeoFrame | None = None,
 def truth_from_footprints(path: str | Path, frame: GeoFrame) -> GroundTruth:
     """Building footprints from a GeoJSON FeatureCollection (WGS84 Polygons), every wall fully observable.
 
-    Features of another ``kind`` than ``building`` and other geometries are skipped; a feature that is not an
-    object, or whose ``geometry`` or ``properties`` is neither an object nor null, is a one-line error.
+    Features of another ``kind`` than ``building`` and other geometries are skipped, and so are rings of fewer
+    than three distinct vertices (a vertex repeated in a row counts once); a feature that is not an object, or
+    whose ``geometry`` or ``properties`` is neither an object nor null, is a one-line error.
     """
     path = Path(path)
     rings, ring_building, ring_labels = [], [], []
@@ -98,9 +99,10 @@ def truth_from_footprints(path: str | Path, frame: GeoFrame) -> GroundTruth:
         for polygon in polys:
             for r_index, ring in enumerate(polygon):
                 ring = [wgs84_position(v, path, n) for v in ring]
+                ring = [v for k, v in enumerate(ring) if k == 0 or v != ring[k - 1]]    # (OSM repeats vertices)
                 if len(ring) > 1 and ring[0] == ring[-1]:         # closed, as GeoJSON's rings are
                     ring = ring[:-1]
-                if len(ring) < 2:
+                if len(ring) < 3:       # no area: two vertices would make one wall twice, there and back
                     continue
                 rings.append(ring)
                 ring_building.append(str(props.get("id", n)))

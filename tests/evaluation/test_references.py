@@ -50,6 +50,23 @@ def test_bad_positions_fail_in_one_line(tmp_path, geometry, match):
         truth_from_footprints(path, FRAME)
 
 
+def test_rings_without_area_are_skipped_and_repeated_vertices_count_once(tmp_path):
+    square = _square(FRAME, 5, -3)
+    repeated = [square[0], *square[:3], square[2], *square[3:]]            # vertices 0 and 2 given twice in a row
+    two = [square[0], square[1], square[0]]                                 # a line: one wall there and back
+    one = [square[0], square[0], square[0], square[0]]
+    path = _write(tmp_path, [{"type": "Feature", "properties": {"id": f"B{k}"},
+                              "geometry": {"type": "Polygon", "coordinates": [ring]}}
+                             for k, ring in enumerate((repeated, two, one))])
+    truth = truth_from_footprints(path, FRAME)
+    assert truth.walls.shape == (4, 4) and set(truth.building) == {"B0"}
+    lengths = np.hypot(truth.walls[:, 2] - truth.walls[:, 0], truth.walls[:, 3] - truth.walls[:, 1])
+    assert np.allclose(lengths, 10.0, atol=1e-6)                            # no zero-length wall
+    with pytest.raises(InputFileError, match="no building Polygon"):
+        truth_from_footprints(_write(tmp_path, [{"type": "Feature", "properties": {},
+                                                 "geometry": {"type": "Polygon", "coordinates": [two]}}]), FRAME)
+
+
 def test_empty_or_wrong_collections_fail(tmp_path):
     with pytest.raises(InputFileError, match="no building Polygon"):
         truth_from_footprints(_write(tmp_path, []), FRAME)
