@@ -25,7 +25,6 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
 from rich.console import Console
 from rich.table import Table
 
@@ -57,13 +56,11 @@ def score(world: str, config, store: SegmentStore, workers: int) -> dict:
     truth_dir = Path(source.location) / "truth"
     truth = load_simulator_truth(truth_dir)
     objects = ClutterObjects.from_records(read_objects_local(truth_dir))
-    per_scan = off_wall(table.segments, truth, objects).segments_on()
     result = fuse("proposed", table.segments, table.scan, config.fusion, **fuse_columns(table.extra, len(table)))
-    fused_on = off_wall(result.segments, truth, objects).segments_on()
     metrics = truth_metrics(result.segments, truth)
-    count = lambda on: np.bincount(on[on >= 0], minlength=len(CLUTTER_KINDS)).tolist()  # noqa: E731
     return {"world": Path(world).stem, "scans": len(extraction.frames), "segments": len(table),
-            "per_scan_on": count(per_scan), "features": len(result.segments), "features_on": count(fused_on),
+            "per_scan_on": off_wall(table.segments, truth, objects).counts_on(), "features": len(result.segments),
+            "features_on": off_wall(result.segments, truth, objects).counts_on(),
             "precision": metrics["precision"], "recall": metrics["recall"]}
 
 

@@ -243,9 +243,7 @@ def score_world(root: Path, frames: list[int], table: SegmentTable, config, meth
 def _clutter(off: OffWall) -> dict:
     """Per kind of ``CLUTTER_KINDS``: how many of the segments lie on it (most of their length off every
     building wall, most of that on it: :meth:`OffWall.segments_on`) and the metres off every wall on it."""
-    on = off.segments_on()
-    return {"segments_on": np.bincount(on[on >= 0], minlength=len(CLUTTER_KINDS)).tolist(),
-            "metres": off.metres_by_kind().tolist()}
+    return {"segments_on": off.counts_on(), "metres": off.metres_by_kind().tolist()}
 
 
 # --- report ------------------------------------------------------------------------------------------

@@ -110,9 +110,9 @@ class DriveEntry(BaseModel):
             raise ValueError("'data_dir' goes with 'kitti'")
         if self.frames is not None:
             try:
-                parse_frames(self.frames)
+                parse_frames(self.frames, "'frames':")
             except FeatmapError as exc:
-                raise ValueError(f"'frames': {str(exc).removeprefix('--frames ')}") from None
+                raise ValueError(str(exc)) from None
         if self.skip_bad_scans and self.dataset == "carmen":
             raise ValueError("'skip_bad_scans' leaves out unreadable scan files; a CARMEN log is read whole")
         return self
@@ -435,6 +435,7 @@ _TASK = threading.local()
 """The reporter of the drive task running on this worker thread (``_TASK.reporter``), if any."""
 _SHOWN_BEFORE = [warnings.showwarning]
 """The ``warnings.showwarning`` that :func:`_route_warning` replaced: it shows what no task raised."""
+_INSTALL = threading.Lock()
 
 
 def _route_warning(message, category, filename, lineno, file=None, line=None) -> None:
@@ -450,17 +451,22 @@ def _route_warning(message, category, filename, lineno, file=None, line=None) ->
 
 @contextlib.contextmanager
 def _warnings_to(reporter: "EventReporter"):
-    """While the block runs on this thread, its warnings go to ``reporter`` instead of the worker's stderr
-    (where a Dask worker prints them in Python's two-line format). Thread-safe: the hook, installed once,
-    looks the reporter up per thread, and it stays (what no task raised goes where it went before)."""
-    if warnings.showwarning is not _route_warning:
-        _SHOWN_BEFORE[0] = warnings.showwarning
-        warnings.showwarning = _route_warning
+    """While the block runs on this thread, the warnings it raises go to ``reporter`` instead of the worker's
+    stderr (where a Dask worker prints them in Python's two-line format). The hook is installed once per
+    process and looks the reporter up per thread, so tasks on threads of one worker keep theirs apart; but
+    Python's warnings state is process-wide, so a ``warnings.catch_warnings`` block running on another
+    thread meanwhile takes what is raised in it (exact on workers of one thread, as featmap's LocalCluster
+    starts them)."""
+    with _INSTALL:
+        if warnings.showwarning is not _route_warning:
+            _SHOWN_BEFORE[0] = warnings.showwarning
+            warnings.showwarning = _route_warning
+    previous = getattr(_TASK, "reporter", None)
     _TASK.reporter = reporter
     try:
         yield
     finally:
-        _TASK.reporter = None
+        _TASK.reporter = previous
 
 
 @dataclass(frozen=True)

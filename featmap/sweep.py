@@ -48,6 +48,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from featmap.config import apply_overrides, closest_key, leaf_keys, read_yaml_mapping
+from featmap.datasets.base import parse_frames
 from featmap.errors import ConfigError, DatasetError, FeatmapError, shown
 from featmap.evaluation import Evaluator, Reference
 from featmap.fusion import FUSION_METHODS, fuse
@@ -121,6 +122,11 @@ class SweepSpec(BaseModel):
                              "'batch' (a batch's output folder)")
         if self.dataset is not None and self.location is None:
             raise ValueError("'dataset' needs a 'location'")
+        if self.frames is not None:
+            try:
+                parse_frames(self.frames, "'frames':")
+            except DatasetError as exc:
+                raise ValueError(str(exc)) from None
         if not self.grid:
             raise ValueError("the grid is empty")
         for key, val in list(self.grid.items()):

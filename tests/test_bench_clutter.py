@@ -15,7 +15,7 @@ def bench():
 
 
 def test_a_van_beside_the_route_is_counted_as_car_and_the_houses_are_not(bench, tmp_path, monkeypatch, capsys):
-    # a 2.3 m van 3.5 m from the route: to the simulator a 5.2 m box, which the extraction keeps as a wall
+    # a 2.3 m van beside the route (its near side 2.5 m from it): to the simulator a 5.2 m box, which the extraction keeps as a wall
     world = tmp_path / "van.yaml"
     world.write_text(TINY_WORLD.replace("name: tiny", "name: van") + "  - {id: van, kind: car, position: [12, -3.5], "
                      "size: [5.2, 2.0, 2.3]}\n")

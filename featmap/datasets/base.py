@@ -141,21 +141,22 @@ class SourceSpec:
     options: tuple[tuple[str, str], ...] = ()
 
 
-def parse_frames(text: str | None) -> slice | None:
-    """``"start:stop:step"`` (each part optional) -> slice; None for all frames."""
+def parse_frames(text: str | None, given_by: str = "--frames") -> slice | None:
+    """``"start:stop:step"`` (each part optional) -> slice; None for all frames. Errors name ``given_by``
+    (the flag, or the key of the file the text came from)."""
     if text is None or text.strip() in ("", ":"):
         return None
     parts = text.split(":")
     if len(parts) > 3:
-        raise DatasetError(f"--frames {text!r}: expected start:stop:step")
+        raise DatasetError(f"{given_by} {text!r}: expected start:stop:step")
     try:
         values = [int(p) if p.strip() else None for p in parts]
     except ValueError:
-        raise DatasetError(f"--frames {text!r}: expected integers, e.g. 0:200:2") from None
+        raise DatasetError(f"{given_by} {text!r}: expected integers, e.g. 0:200:2") from None
     if len(values) == 1:
         return slice(values[0], values[0] + 1)
     if len(values) == 3 and values[2] is not None and values[2] <= 0:
-        raise DatasetError(f"--frames {text!r}: step must be positive")
+        raise DatasetError(f"{given_by} {text!r}: step must be positive")
     return slice(*values)
 
 

@@ -89,7 +89,8 @@ class KittiRawDataset(FrameSource):
         self.notes = SourceNotes(skipped=skipped, flags={"poor_gps": poor_gps} if poor_gps else {})
         self.location = self.drive_dir.resolve()
         try:
-            with np.errstate(all="ignore"):         # a singular calibration: the check below says so in one line
+            with np.errstate(divide="ignore", invalid="ignore"):    # its stereo baselines divide by the rectified
+                # camera projections, which an all-zero camera calibration makes 0 (featmap uses no camera)
                 self._raw = pykitti.raw(str(self.data_dir), self.date, self.drive_id,
                                         frames=good if bad else None)
         except Exception as exc:  # pykitti's own failures, after our checks: name the drive

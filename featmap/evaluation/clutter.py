@@ -55,8 +55,9 @@ class ClutterObjects:
 
     @classmethod
     def from_records(cls, objects: list[dict]) -> "ClutterObjects":
-        """From ``objects_local.json``'s records (``kind`` and a GeoJSON-like local ``geometry``); buildings and
-        unknown kinds are left out."""
+        """From ``objects_local.json``'s records (``kind`` and a GeoJSON-like ``geometry`` in the drive's own
+        local frame, the frame of :func:`~featmap.evaluation.references.load_simulator_truth` without
+        ``frame``); buildings and unknown kinds are left out."""
         points, kinds, trunks = [], [], []
         for obj in objects:
             kind, geom = obj.get("kind"), obj.get("geometry") or {}
@@ -111,9 +112,9 @@ class OffWall:
         return np.bincount(self.kind, weights=self.length, minlength=len(CLUTTER_KINDS))
 
     def segments_on(self, min_share: float = 0.5, min_length_m: float = 0.0) -> np.ndarray:
-        """(K,) the kind each segment lies on (index into ``CLUTTER_KINDS``): the kind of most of its
-        off-wall length when that is at least ``min_share`` of the segment; -1 for the others and for
-        segments shorter than ``min_length_m``."""
+        """(K,) the kind each segment lies on (index into ``CLUTTER_KINDS``): of the segments whose off-wall
+        length is at least ``min_share`` of them, the kind that holds the largest part of it; -1 for the
+        others and for segments shorter than ``min_length_m``."""
         n = len(self.segment_length)
         out = np.full(n, -1, dtype=np.int64)
         if not len(self.owner):
@@ -124,6 +125,11 @@ class OffWall:
         on = (off >= min_share * self.segment_length) & (off > 0) & (self.segment_length >= min_length_m)
         out[on] = per[on].argmax(axis=1)
         return out
+
+    def counts_on(self) -> list[int]:
+        """How many segments lie on each kind of ``CLUTTER_KINDS`` (:meth:`segments_on`)."""
+        on = self.segments_on()
+        return np.bincount(on[on >= 0], minlength=len(CLUTTER_KINDS)).tolist()
 
 
 def off_wall(segments: np.ndarray, truth: GroundTruth, objects: ClutterObjects) -> OffWall:

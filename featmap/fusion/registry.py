@@ -57,9 +57,11 @@ def resolve_methods(spec: str | list[str] | None, flag: str = "--method") -> lis
                 continue
             if part == "all":
                 names.extend(FUSION_METHODS)
-            elif part not in FUSION_METHODS:
-                raise ConfigError(f"{flag}: unknown method '{part}'; allowed: {', '.join(FUSION_METHODS)} or all")
             else:
+                try:
+                    get_method(part)
+                except ConfigError as exc:
+                    raise ConfigError(f"{flag}: {exc}") from None
                 names.append(part)
     if not names:
         raise ConfigError(f"{flag}: no method given; allowed: {', '.join(FUSION_METHODS)} or all")

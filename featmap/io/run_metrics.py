@@ -105,7 +105,7 @@ class RunMetrics(_Model):
     scans: ScanCounts
     segments: int = Field(ge=0)
     timings_s: dict[str, Optional[float]]
-    methods: dict[str, MethodRecord] = Field(min_length=1)
+    methods: dict[str, MethodRecord]
     refinement: Optional[RefinementRecord] = Field(None, description="pose refinement before fusion (None: runs before it existed)")
     online: Optional[OnlineRecord] = Field(None, description="the scans were mapped online, one at a time (None: all at once)")
 

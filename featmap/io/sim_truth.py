@@ -90,11 +90,13 @@ def read_walls_csv(path: str | Path) -> TruthWalls:
     if missing:
         raise InputFileError(path, f"missing column(s) {', '.join(missing)}", line=1)
     walls, building, labels, n_returns, observed = [], [], [], [], []
+    rows = []                                   # (the line a row ends on, the row)
     try:
-        rows = list(reader)
+        for row in reader:
+            rows.append((reader.line_num, row))
     except csv.Error as exc:
         raise InputFileError(path, f"not a readable CSV ({exc})", line=reader.reader.line_num) from None
-    for n, row in enumerate(rows, start=2):
+    for n, row in rows:
         if None in row.values():
             raise InputFileError(path, f"malformed row: fewer cells than the header's {len(reader.fieldnames)}",
                                  line=n)
@@ -116,7 +118,7 @@ def read_walls_csv(path: str | Path) -> TruthWalls:
         labels.append([row["label_1"], row["label_2"]])
         n_returns.append(returns)
         observed.append(intervals)
-    digests = {row.get("source_sha256") or "" for row in rows}
+    digests = {row.get("source_sha256") or "" for _, row in rows}
     if len(digests) > 1:
         raise InputFileError(path, "its rows name different source files (source_sha256)")
     return TruthWalls(np.asarray(walls, float).reshape(-1, 4), np.asarray(building, dtype=str),
@@ -156,10 +158,10 @@ def coverage_of_frames(path: str | Path, walls: np.ndarray, frames: list[int]) -
             bin_m, min_returns = float(data["bin_m"]), int(data["min_bin_returns"])
     except (OSError, ValueError, KeyError, EOFError, TypeError, zipfile.BadZipFile) as exc:
         raise InputFileError(path, f"unreadable coverage file ({type(exc).__name__}: {exc})") from None
-    if len(offset) != len(walls) + 1:
-        raise InputFileError(path, f"covers {len(offset) - 1} walls, walls.csv has {len(walls)}")
     whole = all(a.dtype.kind in "iu" and a.ndim == 1 for a in (frame, bins, count, offset))
-    if not (whole and len(frame) == len(bins) == len(count) and offset[0] == 0 and (np.diff(offset) >= 0).all()
+    if whole and len(offset) != len(walls) + 1:
+        raise InputFileError(path, f"covers {len(offset) - 1} walls, walls.csv has {len(walls)}")
+    if not (whole and len(offset) and len(frame) == len(bins) == len(count) and offset[0] == 0 and (np.diff(offset) >= 0).all()
             and (count >= 0).all() and ((bins >= 0) & (bins < offset[-1])).all()
             and math.isfinite(bin_m) and bin_m > 0):
         raise InputFileError(path, "malformed coverage file: frame, bin and count must be integer columns of one "
@@ -280,6 +282,13 @@ def read_observations(truth_dir: str | Path, frames: list[int] | np.ndarray | No
                                    data["interval_end"])
     except (OSError, ValueError, KeyError, EOFError, TypeError, zipfile.BadZipFile) as exc:
         raise InputFileError(path, f"not a per-scan observation file ({type(exc).__name__}: {exc})") from None
+    columns = (obs.frame, obs.wall, obs.n_hits, obs.s_min, obs.s_max, obs.observed_m)
+    offsets, starts, ends = obs.interval_offset, obs.interval_start, obs.interval_end
+    if not (all(c.ndim == 1 and len(c) == len(obs.frame) for c in columns) and offsets.ndim == 1
+            and len(offsets) == len(obs.frame) + 1 and starts.ndim == ends.ndim == 1 and len(starts) == len(ends)
+            and offsets[0] == 0 and (np.diff(offsets) >= 0).all() and offsets[-1] == len(starts)):
+        raise InputFileError(path, "not a per-scan observation file: its columns are not one row per observation "
+                                   "with interval offsets into the intervals")
     if frames is not None:
         obs = obs.subset(np.isin(obs.frame, np.asarray(frames)))
     return obs

@@ -33,8 +33,8 @@ def overview_plot(path: str | Path, layers: dict[str, np.ndarray], frame: GeoFra
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", BasemapWarning)
             ok = add_basemap(ax, frame, tiles)
-        for w in caught:
-            warnings.warn(str(w.message), BasemapWarning, stacklevel=2)
+        for w in caught:                # (each with its own category: not every warning is the basemap's)
+            warnings.warn(str(w.message), w.category, stacklevel=2)
     if not ok:
         draw_truth(ax, truth)
     for name, segments in layers.items():

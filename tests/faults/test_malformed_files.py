@@ -42,6 +42,7 @@ def test_an_intact_coverage_file_is_read(tmp_path):
     (lambda p: _coverage(p, bin_offset=np.array([0, 16, 15])), "malformed coverage file"),
     (lambda p: _coverage(p, bin_m=np.float64(0.0)), "malformed coverage file"),
     (lambda p: np.savez(p, frame=np.array(["a"], dtype=object)), "unreadable coverage file"),  # pickled: refused
+    (lambda p: _coverage(p, bin_offset=np.int64(15)), "malformed coverage file"),             # 0-d offsets
 ])
 def test_a_damaged_coverage_file_is_one_error_naming_it(tmp_path, damage, needle):
     path = tmp_path / "coverage.npz"
@@ -51,8 +52,18 @@ def test_a_damaged_coverage_file_is_one_error_naming_it(tmp_path, damage, needle
     assert needle in str(info.value) and "\n" not in str(info.value)
 
 
-def test_a_damaged_observations_file_is_one_error_naming_it(tmp_path):
-    (tmp_path / "observations.npz").write_bytes(b"PK\x03\x04 not really a zip")
+@pytest.mark.parametrize("replace", [
+    {}, {"wall": np.array([0])}, {"frame": np.int64(0)}, {"interval_offset": np.array([0, 1, 5])},
+    {"interval_start": np.array([0.0])},
+])
+def test_a_damaged_observations_file_is_one_error_naming_it(tmp_path, replace):
+    arrays = dict(frame=np.array([0, 1]), wall=np.array([0, 1]), n_hits=np.array([60, 70]),
+                  s_min=np.zeros(2), s_max=np.full(2, 3.0), observed_m=np.full(2, 3.0),
+                  interval_offset=np.array([0, 1, 2]), interval_start=np.zeros(2), interval_end=np.full(2, 3.0))
+    np.savez(tmp_path / "observations.npz", **{**arrays, **replace})
+    if not replace:
+        assert len(read_observations(tmp_path)) == 2                      # the intact file reads
+        (tmp_path / "observations.npz").write_bytes(b"PK\x03\x04 not really a zip")
     with pytest.raises(InputFileError, match="observations.npz: not a per-scan observation file"):
         read_observations(tmp_path)
 
@@ -72,6 +83,13 @@ def test_a_walls_csv_row_with_too_few_cells(walls_csv):
     lines[2] = lines[2].rsplit(",", 1)[0]                   # the second wall loses its observed intervals
     walls_csv.write_text("\n".join(lines) + "\n")
     with pytest.raises(InputFileError, match=r"walls.csv:3: malformed row: fewer cells than the header's 9"):
+        read_walls_csv(walls_csv)
+
+
+def test_a_short_walls_csv_row_is_named_by_its_own_line(walls_csv):
+    header, first, second = walls_csv.read_text().splitlines()
+    walls_csv.write_text("\n".join([header, "", first, "", second.rsplit(",", 1)[0]]) + "\n")   # blank lines between
+    with pytest.raises(InputFileError, match=r"walls.csv:5: malformed row"):
         read_walls_csv(walls_csv)
 
 
@@ -116,7 +134,6 @@ def test_a_metrics_files_schema_version_of_another_type(tmp_path):
 @pytest.mark.parametrize("edit,needle", [
     (lambda m: m.update(primary="nope"), "'primary' names 'nope', not one of the references (truth, map)"),
     (lambda m: m.update(segments=-3), "'segments' input should be greater than or equal to 0"),
-    (lambda m: m.update(methods={}), "'methods' dictionary should have at least 1 item"),
     (lambda m: m["scans"].update(processed=-1), "'scans.processed' input should be greater than or equal to 0"),
 ])
 def test_a_metrics_file_that_contradicts_itself(case1_drive, tmp_path, edit, needle):
@@ -181,7 +198,7 @@ def test_a_sweep_range_of_infinite_ends(tmp_path, segments_csv):  # noqa: F811
 def test_a_sweep_files_frames_are_blamed_on_the_file(tmp_path):
     frames = _write(tmp_path / "frames.yaml", "drive: default\nframes: x\nmethods: [proposed]\n"
                                               "grid: {fusion.proposed.gamma: [0.5]}\n")
-    one_line_error(cli("sweep", frames, "--out", tmp_path / "s"), f"{frames}: --frames 'x': expected integers")
+    one_line_error(cli("sweep", frames, "--out", tmp_path / "s"), f"{frames}: 'frames': 'x': expected integers")
 
 
 def test_figures_blame_the_flag_that_gave_a_bad_value(case1_drive, tmp_path):
