@@ -104,10 +104,9 @@ class KittiRawDataset(FrameSource):
         velo_stamps = self.drive_dir / "velodyne_points" / "timestamps.txt"
         # without the scans' own timestamps, the OXTS packets' (one per frame, synchronised with the scans)
         self._stamps = read_timestamps(velo_stamps if velo_stamps.exists() else self.drive_dir / "oxts" / "timestamps.txt")
-        if len(self._stamps) >= max(self.frames, default=-1) + 1:
-            back = frames_back_in_time(self._stamps, self.frames)
-            if back:
-                self.notes = replace(self.notes, flags={**self.notes.flags, TIME_GOES_BACK: back})
+        back = frames_back_in_time(self._stamps, self.frames)     # (one stamp per frame: _check_layout)
+        if back:
+            self.notes = replace(self.notes, flags={**self.notes.flags, TIME_GOES_BACK: back})
         first = self._raw.oxts[0].packet
         try:
             self.geo_origin = GeoFrame(float(first.lat), float(first.lon), float(first.alt))
