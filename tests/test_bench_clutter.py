@@ -40,3 +40,27 @@ def test_bad_flags_are_one_line_and_status_2(bench, capsys):
     assert bench.main(["--set", "nonsense.key=1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 3 and all(line.startswith("bench_clutter: error: ") for line in err)
+
+
+def test_by_object_lists_each_object_segments_lie_on_and_the_low_walls(bench, tmp_path, monkeypatch, capsys):
+    # a dense trimmed 2.3 m hedge north of the route and a 2.2 m masonry garden wall south of it
+    world = tmp_path / "garden.yaml"
+    world.write_text(TINY_WORLD.replace("name: tiny", "name: garden")
+                     + "  - {id: privet, kind: hedge, line: [[16, 4], [23, 4]], height: 2.3, width: 0.8, irregularity: 0.03,"
+                       " porosity: 0.05, depth_m: 0.03}\n"
+                       "  - {id: garden_wall, kind: building, footprint: [[2, -4.3], [10, -4.3], [10, -4], [2, -4]], height: 2.2}\n")
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "rows.json"
+    assert bench.main(["--world", str(world), "--workers", "1", "--cache-dir", str(tmp_path / "cache"),
+                       "--json", str(out), "--by-object"]) == 0
+    (row,) = json.loads(out.read_text())
+    by_id = {o["id"]: o for o in row["by_object"]}
+    assert set(by_id) == {"privet", "garden_wall"}               # the houses are 8-10 m high: not low walls
+    hedge, wall = by_id["privet"], by_id["garden_wall"]
+    assert (hedge["kind"], hedge["height"], wall["kind"], wall["height"]) == ("hedge", 2.3, "low wall", 2.2)
+    # both are kept as walls in most of the 31 scans: to one scan a dense trimmed hedge is a garden wall
+    assert wall["segments"] >= 15 and hedge["segments"] >= 15 and hedge["scans"] == hedge["segments"]
+    assert hedge["features"] == 1 and wall["features"] == 1
+    assert row["per_scan_on"][bench.CLUTTER_KINDS.index("hedge")] == hedge["segments"]
+    printed = capsys.readouterr().out
+    assert "privet" in printed and "garden_wall" in printed and "low wall" in printed      # the object table

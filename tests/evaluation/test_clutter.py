@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from featmap.evaluation.clutter import CLUTTER_KINDS, ClutterObjects, off_wall
+from featmap.evaluation.clutter import CLUTTER_KINDS, ClutterObjects, off_wall, walls_on
 from featmap.evaluation.truth_metrics import GroundTruth
 
 WALL = np.array([[0.0, 0.0, 20.0, 0.0]])                 # a building wall along y = 0
@@ -65,3 +65,31 @@ def test_a_hedge_under_a_crown_counts_as_hedge_and_no_objects_means_nothing_near
     assert bare.segments_on().tolist() == [kind("nothing near")]
     empty = off_wall(np.zeros((0, 4)), TRUTH, OBJECTS)
     assert empty.segments_on().shape == (0,) and empty.metres_by_kind().sum() == 0
+
+
+def test_each_segment_on_clutter_is_put_down_to_the_object_it_lies_on():
+    records = RECORDS + [{"id": "h2", "kind": "hedge", "geometry": {"type": "LineString",
+                                                                   "coordinates": [[10, -10], [18, -10]]}, "height": 2.0}]
+    objects = ClutterObjects.from_records(records)
+    assert objects.names[:2] == ("hedge 0", "fence 1") and objects.names[-1] == "h2"
+    assert [CLUTTER_KINDS[k] for k in objects.object_kind] == ["hedge", "fence", "car", "pole", "tree", "hedge"]
+    assert objects.heights[0] == 1.2 and np.isnan(objects.heights[objects.names.index("tree 4")])
+    segments = np.array([[1.0, -10.0, 7.0, -10.0],           # the first hedge
+                         [11.0, -10.1, 17.0, -10.1],         # the second
+                         [7.0, -10.0, 12.0, -10.0],          # 2 m within reach of the first, 3 m of the second
+                         [68.0, -7.0, 68.0, -3.0],           # the tree
+                         [50.2, -1.05, 54.3, -1.05],         # the car
+                         [2.0, 0.05, 18.0, 0.05],            # on the wall
+                         [100.0, 50.0, 104.0, 50.0]])        # nothing near
+    on = off_wall(segments, TRUTH, objects).objects_on(len(objects.names))
+    assert [objects.names[i] if i >= 0 else None for i in on] == ["hedge 0", "h2", "h2", "tree 4", "car 2", None, None]
+
+
+def test_walls_on_names_the_wall_holding_most_of_a_segment():
+    segments = np.array([[2.0, 0.05, 18.0, 0.05],        # on the wall
+                         [10.0, 0.0, 26.0, 0.0],         # 10 of 16 m on it
+                         [14.0, 0.0, 30.0, 0.0],         # 6 of 16 m on it
+                         [1.0, -10.0, 7.0, -10.0]])      # on the hedge
+    assert walls_on(segments, TRUTH).tolist() == [0, 0, -1, -1]
+    assert walls_on(segments, TRUTH, min_share=0.3).tolist() == [0, 0, 0, -1]
+    assert walls_on(np.zeros((0, 4)), TRUTH).shape == (0,)
