@@ -3,6 +3,7 @@ segments on hedges, cars and trees.
 
     .venv/bin/python benchmarks/bench_clutter.py [--world configs/worlds/clutter_street.yaml ...]
         [--set KEY=VALUE ...] [--variant "KEY=VALUE ..." ...] [--workers 2] [--cache-dir data/cache] [--json FILE]
+        [--by-object]
 
 For each world (a world file or a built-in name; simulated on first use into ``data/sim/<stem>`` like
 ``featmap run --world``), extract every scan through the pipeline's loop and cache, fuse the segments with
@@ -12,6 +13,9 @@ or tree of the world, beside a wall, or nothing near). Printed per world and con
 segments on each kind of clutter per 100 scans, and the proposed map's precision, recall and features on
 clutter against the simulator's truth. With ``--variant`` (repeatable) the same worlds again with those
 settings on top of ``--set``, for comparing an extraction rule against the configuration without it.
+With ``--by-object``, also per world and configuration: each object (by its id in the world file) that
+per-scan segments or fused features lie on, and every building lower than ``LOW_WALL_M`` (a garden or
+boundary wall) with the segments on its walls, so that a hedge can be set beside a garden wall of its height.
 
 The default world, ``configs/worlds/clutter_street.yaml``, is a development world (not a tuning or a
 held-out world): a street of the clutter the real KITTI scans keep as walls (hedges with tree crowns down
