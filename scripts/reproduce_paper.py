@@ -2,7 +2,8 @@
 
     .venv/bin/python scripts/reproduce_paper.py            # ~6 minutes on 2 cores, all from scratch
 
-Drives (simulated on first use into data/sim/, reused afterwards):
+Drives (simulated on first use into data/sim/<case>, and again when their world, sensor, pose noise or the
+simulator's code changes: :func:`featmap.datasets.simulated.ensure_simulated_drive`; reused otherwise):
 
 - ``residential`` (HDL-64E, exact poses): the KITTI 0018 stand-in; Table 1, Table 3, Figs. 2-3, 6-11.
 - ``residential`` with OXTS pose noise (0.10 m, 0.2 deg): the limitation the paper names.
@@ -24,6 +25,7 @@ from pathlib import Path
 
 from featmap.console import RichReporter
 from featmap.datasets import KittiRawDataset
+from featmap.datasets.simulated import ensure_simulated_drive
 from featmap.evaluation import truth_metrics
 from featmap.fusion import FUSION_METHODS, fuse, prepare_method
 from featmap.fusion.registry import fuse_columns
@@ -33,10 +35,7 @@ from featmap.outputs import tiles_of
 from featmap.pipeline import MappingPipeline, SegmentStore, load_config, local_executor
 from featmap.pipeline.run_folder import load_run
 from featmap.plotting.figures import FigureInputs, make_figures
-from featmap.reporting import track
-from featmap.simulation.sensors import SENSORS
-from featmap.simulation.simulate import SIM_DATE, simulate_drive
-from featmap.simulation.worlds import load_world
+from featmap.simulation.simulate import SIM_DATE
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
@@ -53,12 +52,10 @@ REPORTER = RichReporter()
 
 
 def drive_for(case: str) -> Path:
+    """The KITTI raw root of ``case``'s drive, simulated into ``data/sim/<case>`` if missing or stale (the
+    ``residential`` case is ``featmap run``'s default drive)."""
     world, sensor, pose_noise = CASES[case]
-    root = ROOT / "data" / "sim" / (world if case == "residential" else case)
-    if not (root / SIM_DATE / f"{DRIVE}_sync" / "truth" / "simulation.json").exists():
-        simulate_drive(load_world(world), root, SENSORS[sensor], pose_noise=pose_noise, seed=0,
-                       progress=lambda it, n: track(REPORTER, it, n, f"simulating {case}"))
-    return root
+    return ensure_simulated_drive(world, ROOT / "data" / "sim", REPORTER, sensor, pose_noise, folder=case)[0]
 
 
 def run_case(case: str, preset: str | None = None) -> Path:
