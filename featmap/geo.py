@@ -110,3 +110,11 @@ def reproject_segments(segments: np.ndarray, src: GeoFrame, dst: GeoFrame) -> np
     """(M, 4) segments ``x1, y1, x2, y2`` of the frame of ``src`` in the frame of ``dst``."""
     segments = np.asarray(segments, float).reshape(-1, 4)
     return np.column_stack([reproject(segments[:, :2], src, dst), reproject(segments[:, 2:], src, dst)])
+
+
+def open_ring(points) -> list[tuple]:
+    """A polygon ring's vertices once each, as tuples: a vertex repeated in a row (OSM exports have them)
+    counts once, and the closing vertex (GeoJSON rings end where they start) is dropped."""
+    points = [tuple(p) for p in points]
+    points = [p for k, p in enumerate(points) if k == 0 or p != points[k - 1]]
+    return points[:-1] if len(points) > 1 and points[0] == points[-1] else points

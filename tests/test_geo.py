@@ -44,3 +44,11 @@ def test_reproject_moves_points_between_two_drives_frames():
     segs = np.array([[250.0, -120.0, 0.0, 0.0]])
     assert np.allclose(reproject_segments(segs, a, b), np.r_[moved[0], moved[2]][None])
     assert np.array_equal(reproject(pts, a, GeoFrame(49.0100, 8.4200, 300.0)), pts)   # same origin: unchanged
+
+
+def test_open_ring_counts_each_vertex_once_and_drops_the_closing_one():
+    from featmap.geo import open_ring
+
+    assert open_ring([[0, 0], [1, 0], [1, 0], [1, 1], [0, 0]]) == [(0, 0), (1, 0), (1, 1)]
+    assert open_ring([(0, 0), (1, 0), (1, 1)]) == [(0, 0), (1, 0), (1, 1)]      # already open
+    assert open_ring([(2, 2), (2, 2)]) == [(2, 2)] and open_ring([]) == []

@@ -19,7 +19,7 @@ import numpy as np
 
 from featmap.errors import ConfigError, InputFileError
 from featmap.evaluation.truth_metrics import MIN_OBSERVED_M, TOL_M, GroundTruth, walls_near
-from featmap.geo import GeoFrame, reproject, reproject_segments
+from featmap.geo import GeoFrame, open_ring, reproject, reproject_segments
 from featmap.io.geojson import features_of, wgs84_position
 from featmap.io.jsonfile import read_json
 from featmap.io.sim_truth import (COVERAGE_BIN_M, FOOTPRINT_WALLS_FILE, TruthWalls, coverage_of_frames, observed_intervals,
@@ -98,10 +98,7 @@ def truth_from_footprints(path: str | Path, frame: GeoFrame) -> GroundTruth:
         vlabels = vlabels if isinstance(vlabels, list) else []
         for polygon in polys:
             for r_index, ring in enumerate(polygon):
-                ring = [wgs84_position(v, path, n) for v in ring]
-                ring = [v for k, v in enumerate(ring) if k == 0 or v != ring[k - 1]]    # (OSM repeats vertices)
-                if len(ring) > 1 and ring[0] == ring[-1]:         # closed, as GeoJSON's rings are
-                    ring = ring[:-1]
+                ring = open_ring(wgs84_position(v, path, n) for v in ring)
                 if len(ring) < 3:       # no area: two vertices would make one wall twice, there and back
                     continue
                 rings.append(ring)

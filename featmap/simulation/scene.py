@@ -25,8 +25,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from featmap.geo import open_ring
 from featmap.simulation.ground import GroundSurface
-from featmap.simulation.worlds import World, _open_ring, building_edges
+from featmap.simulation.worlds import World, building_edges
 
 REFLECTANCE = {"ground": 0.12, "building": 0.32, "roof": 0.3, "fence": 0.4, "car": 0.65, "pole": 0.45, "tree": 0.2,
                "hedge": 0.18}
@@ -68,7 +69,7 @@ def building_levels(world: World, surface: GroundSurface | None = None) -> list[
         return [(0.0, b.height) for b in world.buildings]
     out = []
     for b in world.buildings:
-        z = surface.height(np.asarray(_open_ring(b.footprint), float))
+        z = surface.height(np.asarray(open_ring(b.footprint), float))
         out.append((float(z.min()) - 0.3, float(z.max()) + b.height))
     return out
 
@@ -92,7 +93,7 @@ def _roof_mesh(world: World, roof_z: list[float]) -> tuple[np.ndarray, np.ndarra
 
     verts, tris = [], []
     for b, z in zip(world.buildings, roof_z):
-        poly = Polygon(_open_ring(b.footprint), [_open_ring(h) for h in b.holes])
+        poly = Polygon(open_ring(b.footprint), [open_ring(h) for h in b.holes])
         for tri in shapely.constrained_delaunay_triangles(poly).geoms:
             base = len(verts)
             verts += [(x, y, z) for x, y in list(tri.exterior.coords)[:3]]

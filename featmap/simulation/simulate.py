@@ -38,8 +38,8 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from featmap.errors import FeatmapError
-from featmap.geo import GeoFrame, latlon_to_mercator, mercator_to_latlon
+from featmap.errors import FeatmapError, WorldError
+from featmap.geo import GeoFrame, latlon_to_mercator, mercator_to_latlon, open_ring
 from featmap.io.atomic import atomic_write_text, missing_folders, remove_empty_folders
 from featmap.io.kitti_raw import (drive_paths, format_oxts_packet, write_calib_file, write_timestamps,
                                   write_velo_bin)
@@ -49,7 +49,7 @@ from featmap.simulation.observations import concatenate, observe_scan
 from featmap.simulation.scene import REFLECTANCE, build_scene, cast, through_foliage
 from featmap.simulation.sensors import SENSORS, SensorPreset
 from featmap.simulation.trajectory import sample_poses
-from featmap.simulation.worlds import World, _open_ring
+from featmap.simulation.worlds import World
 
 SIM_DATE = "2000_01_01"
 """Simulated drives use this date, so they never collide with a real KITTI drive."""
@@ -210,16 +210,28 @@ NOT_SIMULATOR_CODE = frozenset({"splits.py"})
 """Modules of :mod:`featmap.simulation` left out of :func:`simulation_fingerprint`: which seeds form which
 split does not change how any drive is simulated."""
 
+SIMULATOR_DEPENDENCIES = ("featmap.geo", "featmap.geometry", "featmap.io.carmen", "featmap.io.kitti_raw",
+                          "featmap.io.sim_truth")
+"""Modules outside :mod:`featmap.simulation` whose code shapes what a simulated drive's files hold (the OXTS
+positions, calibration and packet format, the truth's observed intervals and coverage, the indoor beams):
+part of :func:`simulation_fingerprint`, so that an edit to them simulates the cached drives again."""
+NOT_OUTPUT_DEPENDENCIES = ("featmap.config", "featmap.errors", "featmap.io.atomic", "featmap.io.jsonfile")
+"""The other modules the simulator imports: they read world files (whose content is in the fingerprint's
+spec), name errors, or make writes atomic, and shape none of a drive's files. A test keeps the two lists
+equal to everything :mod:`featmap.simulation` imports, at any depth."""
+
 
 def simulation_fingerprint(spec: dict) -> str:
     """16 hex digits naming what a simulated drive is made from: ``spec`` (JSON-able: the world, sensor,
-    noise, seed, ...) and the source code of :mod:`featmap.simulation` (but for :data:`NOT_SIMULATOR_CODE`),
-    so that a cached drive is simulated again when either changes."""
+    noise, seed, ...), the source code of :mod:`featmap.simulation` (but for :data:`NOT_SIMULATOR_CODE`) and
+    that of :data:`SIMULATOR_DEPENDENCIES`, so that a cached drive is simulated again when any changes."""
     import hashlib
+    import importlib.util
 
     import featmap.simulation as simulation
 
     sources = sorted(p for p in Path(simulation.__file__).parent.glob("*.py") if p.name not in NOT_SIMULATOR_CODE)
+    sources += [Path(importlib.util.find_spec(name).origin) for name in SIMULATOR_DEPENDENCIES]
     spec = {**spec, "simulator": hashlib.sha256(b"".join(p.read_bytes() for p in sources)).hexdigest()}
     return hashlib.sha256(json.dumps(spec, sort_keys=True, default=list).encode()).hexdigest()[:16]
 
@@ -284,8 +296,11 @@ def _simulate_drive(world: World, out_root: str | Path, sensor: SensorPreset, n_
         shutil.rmtree(tmp_dir)
 
     dt_s = 1.0 / sensor.rate_hz
-    xy, yaw = sample_poses(np.asarray(world.route.waypoints), world.route.speed_mps, world.route.turn_radius_m,
-                           sensor.rate_hz, n_frames)
+    try:
+        xy, yaw = sample_poses(np.asarray(world.route.waypoints), world.route.speed_mps, world.route.turn_radius_m,
+                               sensor.rate_hz, n_frames)
+    except WorldError as exc:
+        raise WorldError(f"{world.source or world.name}: {exc}") from None
     n = len(xy)
     if n < 2:
         raise FeatmapError(f"{world.source or world.name}: the route is too short for two frames")
@@ -479,7 +494,7 @@ def _write_truth(folder: Path, world: World, edges, coverage, bin_offset, n_bins
     for n, obj in enumerate(world.objects):
         oid = obj.id or f"{obj.kind}{n}"
         if obj.kind == "building":
-            rings = [np.asarray(_open_ring(obj.footprint), float)] + [np.asarray(_open_ring(h), float) for h in obj.holes]
+            rings = [np.asarray(open_ring(obj.footprint), float)] + [np.asarray(open_ring(h), float) for h in obj.holes]
             local = [(r - off).round(4).tolist() for r in rings]
             geom_local = {"type": "Polygon", "coordinates": local}
             extra = {"height": obj.height, "vertex_labels": obj.vertex_labels}

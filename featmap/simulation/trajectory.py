@@ -4,6 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from featmap.errors import WorldError
+
+MAX_FRAMES = 100_000
+"""Most frames a simulated drive may have: 2.8 hours at 10 Hz, about 80 GB of HDL-64E scans (KITTI's longest
+drives have about 5,000). A route that takes more (a speed typed a thousand times too small) is refused
+before anything is computed; ``n_frames`` may cap it."""
+
 
 def fillet_polyline(waypoints: np.ndarray, radius: float, step: float = 0.2) -> np.ndarray:
     """Densify a polyline (K, 2) into points ~``step`` apart, replacing each corner by a circular arc.
@@ -56,11 +63,22 @@ def sample_poses(waypoints: np.ndarray, speed_mps: float, turn_radius_m: float, 
 
     The vehicle drives the filleted route at constant speed; ``n_frames`` caps the number of frames
     (default: the whole route).
+
+    Raises:
+        WorldError: the route would take more than :data:`MAX_FRAMES` frames.
     """
-    path = fillet_polyline(np.asarray(waypoints, float), turn_radius_m)
+    spacing = speed_mps / rate_hz
+    legs = np.asarray(waypoints, float).reshape(-1, 2)
+    length = float(np.hypot(*np.diff(legs, axis=0).T).sum())     # (rounding the corners only shortens it)
+    with np.errstate(over="ignore"):
+        most = min(length / spacing + 1, n_frames if n_frames is not None else np.inf)   # (inf for a speed ~1e-310)
+    if most > MAX_FRAMES:
+        frames = f"{most:,.0f}" if most < 1e12 else f"{most:.1e}"
+        raise WorldError(f"the route takes about {frames} frames ({length:,.0f} m at {speed_mps:g} m/s, {rate_hz:g} Hz); "
+                         f"at most {MAX_FRAMES:,}: raise route.speed_mps or shorten the route")
+    path = fillet_polyline(legs, turn_radius_m)
     seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
     s = np.concatenate([[0.0], np.cumsum(seg)])
-    spacing = speed_mps / rate_hz
     total = int(np.floor(s[-1] / spacing)) + 1
     n = total if n_frames is None else min(n_frames, total)
     s_frames = np.arange(n) * spacing

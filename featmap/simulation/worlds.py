@@ -47,12 +47,18 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError,
 
 from featmap.config import InvalidYamlError, load_yaml_text
 from featmap.errors import FeatmapError, WorldError
+from featmap.geo import open_ring
 
 WORLDS_DIR = Path(__file__).resolve().parents[1] / "resources" / "worlds"
 KINDS = ("building", "fence", "car", "pole", "tree", "hedge")
 
 
 PositiveLength = Annotated[float, Field(gt=0)]
+COORDINATE_LIMIT_M = 1e6
+"""A world's coordinates lie within this many metres of its origin (1,000 km: a local frame, not UTM
+eastings or degrees); beyond it routes take years and OXTS positions mean nothing."""
+Coordinate = Annotated[float, Field(ge=-COORDINATE_LIMIT_M, le=COORDINATE_LIMIT_M)]
+Point = tuple[Coordinate, Coordinate]
 
 
 class _Obj(BaseModel):
@@ -62,36 +68,36 @@ class _Obj(BaseModel):
 
 class Building(_Obj):
     kind: Literal["building"]
-    footprint: list[tuple[float, float]] = Field(min_length=3)
-    holes: list[list[tuple[float, float]]] = []
+    footprint: list[Point] = Field(min_length=3)
+    holes: list[list[Point]] = []
     height: float = Field(10.0, gt=0)
     vertex_labels: Optional[list[str]] = None
 
 
 class Fence(_Obj):
     kind: Literal["fence"]
-    line: list[tuple[float, float]] = Field(min_length=2)
+    line: list[Point] = Field(min_length=2)
     height: float = Field(1.2, gt=0)
     thickness: float = Field(0.08, gt=0)
 
 
 class Car(_Obj):
     kind: Literal["car"]
-    position: tuple[float, float]
+    position: Point
     heading_deg: float = 0.0
     size: tuple[PositiveLength, PositiveLength, PositiveLength] = (4.5, 1.8, 1.5)
 
 
 class Pole(_Obj):
     kind: Literal["pole"]
-    position: tuple[float, float]
+    position: Point
     radius: float = Field(0.12, gt=0)
     height: float = Field(6.0, gt=0)
 
 
 class Tree(_Obj):
     kind: Literal["tree"]
-    position: tuple[float, float]
+    position: Point
     trunk_radius: float = Field(0.2, gt=0)
     trunk_height: float = Field(2.5, gt=0)
     crown_radius: float = Field(2.0, gt=0)
@@ -105,7 +111,7 @@ class Hedge(_Obj):
     """Low, irregular vegetation along a polyline: a row of boxes of jittered height, width and position."""
 
     kind: Literal["hedge"]
-    line: list[tuple[float, float]] = Field(min_length=2)
+    line: list[Point] = Field(min_length=2)
     height: float = Field(1.2, gt=0)
     width: float = Field(0.8, gt=0)
     irregularity: float = Field(0.15, ge=0, description="metres: std of the jitter of each box's height, width and position")
@@ -122,7 +128,7 @@ _OBJECT = TypeAdapter(WorldObject)
 
 class Route(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-    waypoints: list[tuple[float, float]] = Field(min_length=2)
+    waypoints: list[Point] = Field(min_length=2)
     speed_mps: float = Field(8.0, gt=0)
     turn_radius_m: float = Field(8.0, ge=0)
 
@@ -131,7 +137,7 @@ class Street(BaseModel):
     """A street's carriageway: a polyline and its width (metres); the ground outside it is the curb's height higher."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-    line: list[tuple[float, float]] = Field(min_length=2)
+    line: list[Point] = Field(min_length=2)
     width: float = Field(gt=0)
 
 
@@ -213,16 +219,9 @@ def _check_object(path: str, index: int, raw) -> object:
                              "footprints must be simple polygons (no self-intersection)")
         if poly.area <= 0:
             raise WorldError(f"{where}: footprint has no area")
-        if obj.vertex_labels is not None and len(obj.vertex_labels) != len(_open_ring(obj.footprint)):
-            raise WorldError(f"{where}: {len(obj.vertex_labels)} vertex_labels for {len(_open_ring(obj.footprint))} vertices")
+        if obj.vertex_labels is not None and len(obj.vertex_labels) != len(open_ring(obj.footprint)):
+            raise WorldError(f"{where}: {len(obj.vertex_labels)} vertex_labels for {len(open_ring(obj.footprint))} vertices")
     return obj
-
-
-def _open_ring(points) -> list:
-    """The ring's vertices once each: a repeated vertex (OSM exports have them) and the closing one dropped."""
-    points = [tuple(p) for p in points]
-    points = [p for k, p in enumerate(points) if k == 0 or p != points[k - 1]]
-    return points[:-1] if len(points) > 1 and points[0] == points[-1] else points
 
 
 def world_from_dict(data: dict, path: str) -> World:
@@ -434,9 +433,9 @@ def building_edges(world: World) -> list[dict]:
     edges = []
     for b_index, b in enumerate(world.buildings):
         bid = b.id or f"building{b_index}"
-        poly = orient(Polygon(_open_ring(b.footprint), [_open_ring(h) for h in b.holes]), sign=1.0)
+        poly = orient(Polygon(open_ring(b.footprint), [open_ring(h) for h in b.holes]), sign=1.0)
         rings = [np.asarray(poly.exterior.coords)[:-1]] + [np.asarray(r.coords)[:-1] for r in poly.interiors]
-        ext_raw = _open_ring(b.footprint)
+        ext_raw = open_ring(b.footprint)
         for r_index, ring in enumerate(rings):
             for k in range(len(ring)):
                 p, q = ring[k], ring[(k + 1) % len(ring)]

@@ -287,3 +287,23 @@ def test_a_porous_crown_lets_rays_through_but_its_trunk_does_not(tmp_path):
     on_wall = np.abs(pts[:, 1] - WALL_Y) < 0.05
     assert trunk.sum() > 20 and not (trunk & on_wall).any()
     assert crown_core.sum() > 200 and 0.4 < (crown_core & on_wall).sum() / crown_core.sum() < 0.6
+
+
+@pytest.mark.parametrize("speed,frames", [(0.008, "325,001"), (1e-300, "2.6e+303"), (1e-310, "inf")])
+def test_a_route_of_more_than_max_frames_is_refused_before_anything_is_written(tmp_path, speed, frames):
+    """A speed typed a thousand times too small took hours and ~80 GB per 100,000 frames; 1e-300 m/s asked
+    numpy for an array larger than memory (ValueError: Maximum allowed size exceeded)."""
+    import re
+
+    from featmap.errors import WorldError
+    from featmap.simulation.trajectory import MAX_FRAMES
+
+    world = world_from_dict({"name": "slow", "route": {"waypoints": [[0, 0], [260, 0]], "speed_mps": speed}}, "slow.yaml")
+    with pytest.raises(WorldError, match=rf"^slow.yaml: the route takes about {re.escape(frames)} frames \(260 m at {speed:g} m/s, "
+                                         rf"10 Hz\); at most {MAX_FRAMES:,}: raise route.speed_mps"):
+        simulate_drive(world, tmp_path / "sim", SENSORS["hdl64"])
+    assert not any((tmp_path / "sim").rglob("*.bin"))
+    # capped by n_frames, the same route is simulated (its first frames)
+    if speed == 0.008:
+        drive = simulate_drive(world, tmp_path / "capped", SENSORS["vlp16"], n_frames=3)
+        assert drive.n_frames == 3

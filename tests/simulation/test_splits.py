@@ -41,3 +41,44 @@ def test_listing_a_seed_does_not_change_the_simulation_fingerprint(monkeypatch):
     monkeypatch.setattr(Path, "read_bytes", edited("procedural.py"))
     assert simulate.simulation_fingerprint(spec) != before              # the generator is simulator code
     assert (Path(simulate.__file__).parent / "splits.py").exists()      # the name left out is a real module
+
+
+def _featmap_imports(path: Path) -> set[str]:
+    """The featmap modules a source file imports (at module level or inside functions)."""
+    import ast
+    import importlib.util
+
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("featmap"):
+            found.add(node.module)
+            if importlib.util.find_spec(node.module).submodule_search_locations is not None:   # a package
+                found |= {f"{node.module}.{a.name}" for a in node.names
+                          if importlib.util.find_spec(f"{node.module}.{a.name}") is not None}
+        elif isinstance(node, ast.Import):
+            found |= {a.name for a in node.names if a.name.startswith("featmap")}
+    return found
+
+
+def test_every_module_the_simulator_imports_is_in_its_fingerprint_or_said_to_shape_no_output():
+    import importlib.util
+
+    todo = [f"featmap.simulation.{p.stem}" for p in Path(simulate.__file__).parent.glob("*.py")
+            if p.name not in simulate.NOT_SIMULATOR_CODE | {"__init__.py"}]
+    seen = set()
+    while todo:
+        name = todo.pop()
+        if name not in seen:
+            seen.add(name)
+            todo += _featmap_imports(Path(importlib.util.find_spec(name).origin))
+    outside = {name for name in seen if not name.startswith("featmap.simulation")} - {"featmap", "featmap.io"}
+    assert outside == set(simulate.SIMULATOR_DEPENDENCIES) | set(simulate.NOT_OUTPUT_DEPENDENCIES)
+    assert not set(simulate.SIMULATOR_DEPENDENCIES) & set(simulate.NOT_OUTPUT_DEPENDENCIES)
+
+
+def test_an_edit_to_a_module_the_simulator_writes_with_changes_the_fingerprint(monkeypatch):
+    spec = {"world": "w", "seed": 1}
+    before = simulate.simulation_fingerprint(spec)
+    read_bytes = Path.read_bytes
+    monkeypatch.setattr(Path, "read_bytes", lambda path: read_bytes(path) + (b"#" if path.name == "sim_truth.py" else b""))
+    assert simulate.simulation_fingerprint(spec) != before

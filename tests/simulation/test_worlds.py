@@ -35,6 +35,22 @@ def test_a_non_finite_route_is_one_line(tmp_path):
         load_world(path)
 
 
+@pytest.mark.parametrize("route,match", [
+    ("{waypoints: [[0, 0], [1.0e300, 0]]}", r"w.yaml: 'route.waypoints.1.0' input should be less than or equal to 1000000"),
+    ("{waypoints: [[0, 0], [0, -2.0e6]]}", r"w.yaml: 'route.waypoints.1.1' input should be greater than or equal to -1000000"),
+])
+def test_coordinates_beyond_1000_km_are_one_line(tmp_path, route, match):
+    """1e300 used to pass and overflow inside the route's rounding (OverflowError: cannot convert float
+    infinity to integer)."""
+    path = tmp_path / "w.yaml"
+    path.write_text(f"name: t\nroute: {route}\n")
+    with pytest.raises(WorldError, match=match):
+        load_world(path)
+    path.write_text(BASE + "  - {id: far, kind: pole, position: [5, 1.0e7]}\n")
+    with pytest.raises(WorldError, match=r"object 'far' \(pole\): 'position.1' input should be less than or equal"):
+        load_world(path)
+
+
 def test_a_key_given_twice_in_a_world_file_is_one_line_naming_the_line(tmp_path):
     """Read as strictly as a config file: PyYAML alone keeps the last 'height' without a word."""
     path = tmp_path / "w.yaml"
