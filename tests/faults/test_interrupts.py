@@ -1,4 +1,5 @@
-"""SIGKILL in the middle of a run or a sweep, then the same command again: the same outputs as without it."""
+"""SIGKILL in the middle of a run or a sweep, then the same command again: the same outputs as without it;
+a reader that goes away; a Ctrl-C that lands where Python would drop it."""
 
 import csv
 import io
@@ -8,6 +9,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+import pytest
 
 from featmap.io.run_metrics import read_run_metrics
 from tests.faults.conftest import cli, contract_files, featmap_process, run_args
@@ -94,3 +97,60 @@ def test_a_broken_pipe_that_is_not_standard_output_is_an_error(monkeypatch):
     result = cli("config")
     assert result.exit_code == 2
     assert result.output.strip().splitlines() == ["featmap: error: /tmp/worker.sock: Broken pipe"]
+
+
+def _ctrl_c_inside_a_gc_callback(progress: list) -> None:
+    """One garbage collection whose callback is interrupted by a SIGINT (handled there, where Python drops
+    the KeyboardInterrupt), then a blocking wait of one second; ``progress`` records the steps done."""
+    import gc
+    import threading
+
+    def callback(phase, info):
+        if phase == "start" and not progress:
+            progress.append("interrupted")
+            signal.raise_signal(signal.SIGINT)      # Python's handler raises KeyboardInterrupt right here
+
+    gc.callbacks.append(callback)
+    try:
+        gc.collect()
+    finally:
+        gc.callbacks.remove(callback)
+    progress.append("collected")
+    threading.Event().wait(1.0)
+    progress.append("waited")
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+def test_python_drops_a_ctrl_c_that_lands_in_a_gc_callback():
+    # the hazard: Dask's scheduler, in a batch's process, hooks a function into every garbage collection
+    progress = []
+    _ctrl_c_inside_a_gc_callback(progress)           # no KeyboardInterrupt: printed as "Exception ignored"
+    assert progress == ["interrupted", "collected", "waited"]
+
+
+def test_featmap_commands_raise_a_ctrl_c_that_lands_in_a_gc_callback_again(capsys):
+    from featmap.cli import _ctrl_c_never_dropped
+
+    previous, progress = sys.unraisablehook, []
+    with pytest.raises(KeyboardInterrupt), _ctrl_c_never_dropped():
+        _ctrl_c_inside_a_gc_callback(progress)
+    assert progress[0] == "interrupted" and "waited" not in progress   # raised again, within the wait at the latest
+    assert sys.unraisablehook is previous
+    assert "Exception ignored" not in capsys.readouterr().err
+
+
+def test_a_ctrl_c_that_ended_a_string_exec_still_exits_130_under_python_m(tmp_path):
+    # CPython marks a KeyboardInterrupt that ends a string exec (a dataclass's generated methods, say) and,
+    # under `python -m`, exits by SIGINT at the end whatever exit code was asked for (-2, not 130)
+    (tmp_path / "interrupted_in_exec.py").write_text(
+        "from featmap import cli\n\n\n"
+        "@cli.command\n"
+        "def interrupted():\n"
+        "    exec('raise KeyboardInterrupt', {})\n\n\n"
+        "cli.main()\n")
+    root = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    process = subprocess.run([sys.executable, "-m", "interrupted_in_exec", "interrupted"], cwd=tmp_path, env=env,
+                             capture_output=True, text=True, timeout=120)
+    assert process.returncode == 130, process.stderr
+    assert process.stderr.splitlines() == ["featmap: interrupted; finished files are complete, nothing half-written was kept."]
