@@ -1,4 +1,5 @@
-"""The package keeps its layers and has no import cycles; benchmarks and scripts use the library, not the CLI.
+"""The package keeps its layers and has no import cycles; benchmarks and scripts use the library, not the CLI;
+no name is undefined and no import unused.
 
 The layers are declared in pyproject.toml ([tool.importlinter]) and checked with import-linter.
 """
@@ -17,6 +18,14 @@ def test_import_contracts_are_kept():
                          capture_output=True, text=True)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-2000:]
     assert "2 kept, 0 broken" in res.stdout
+
+
+def test_no_undefined_name_unused_import_or_syntax_error():
+    # pyflakes' checks (F) and syntax errors (E9), as ruff runs them, over every Python file of the repository
+    ruff = Path(sys.executable).parent / "ruff"
+    res = subprocess.run([str(ruff), "check", "--no-cache", "--select", "F,E9", "featmap", "tests", "scripts",
+                          "benchmarks"], cwd=ROOT, capture_output=True, text=True)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-2000:]
 
 
 def test_benchmarks_and_scripts_do_not_import_the_command_line():
