@@ -102,13 +102,13 @@ def _ctrl_c_never_dropped():
     """Inside the block, a Ctrl-C that Python would drop is raised again where it can propagate.
 
     Python prints an exception raised in a garbage collector callback or a ``__del__`` method ("Exception
-    ignored in ...") and goes on. Dask's scheduler, which runs in a batch's own process, hooks a function
-    into every garbage collection, so a Ctrl-C that arrived while it ran was lost: the batch printed a
-    KeyboardInterrupt traceback and ran to its end (1 in about 60 Ctrl-Cs under load). Such a KeyboardInterrupt is
-    now sent again to the main thread as a real SIGINT 10 ms later, from a timer (sent at once, it would
-    land in the hook itself and be dropped again; a real signal, unlike ``_thread.interrupt_main``, also
-    wakes a main thread blocked in a wait); should it land in a callback again, it comes back here. Other
-    unraisable exceptions go to the hook there was before.
+    ignored in ...") and goes on. Dask's scheduler, which runs in a batch's own process, hooks a function into
+    every garbage collection, so a Ctrl-C that arrived while it ran was lost: the batch printed a
+    KeyboardInterrupt traceback and ran to its end (1 in about 60 Ctrl-Cs under load). Such a
+    KeyboardInterrupt is now sent again to the main thread as a real SIGINT 10 ms later, from a timer (sent at
+    once, it would land in the hook itself and be dropped again; a real signal, unlike
+    ``_thread.interrupt_main``, also wakes a main thread blocked in a wait); should it land in a callback
+    again, it comes back here. Other unraisable exceptions go to the hook there was before.
     """
     import threading
 

@@ -148,9 +148,7 @@ def test_a_ctrl_c_that_ended_a_string_exec_still_exits_130_under_python_m(tmp_pa
         "def interrupted():\n"
         "    exec('raise KeyboardInterrupt', {})\n\n\n"
         "cli.main()\n")
-    root = Path(__file__).resolve().parents[2]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
-    process = subprocess.run([sys.executable, "-m", "interrupted_in_exec", "interrupted"], cwd=tmp_path, env=env,
+    process = subprocess.run([sys.executable, "-m", "interrupted_in_exec", "interrupted"], cwd=tmp_path,
                              capture_output=True, text=True, timeout=120)
     assert process.returncode == 130, process.stderr
     assert process.stderr.splitlines() == ["featmap: interrupted; finished files are complete, nothing half-written was kept."]
